@@ -1,0 +1,18 @@
+"""Networks: plain ``nn.Module``s (tensors in, tensors out) and their TorchRL wrappers."""
+from torchrl_hybrid.modules.actor_critic import make_policy, make_tabular_actor_critic, tabular_net
+from torchrl_hybrid.modules.encoders import OneHotEncoder
+from torchrl_hybrid.modules.inverse_dynamics import (
+    DualInverseDynamics,
+    InverseDynamicsModel,
+    MLPInverseDynamics,
+)
+
+__all__ = [
+    "DualInverseDynamics",
+    "InverseDynamicsModel",
+    "MLPInverseDynamics",
+    "OneHotEncoder",
+    "make_policy",
+    "make_tabular_actor_critic",
+    "tabular_net",
+]

@@ -1,0 +1,170 @@
+"""Behavioural cloning on expert states, with actions inferred by an inverse model."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import ProbabilisticTensorDictSequential
+from tensordict.utils import NestedKey
+from torchrl.objectives import LossModule
+
+from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
+
+__all__ = ["ExpertBCLoss", "PolicyEntropyLoss"]
+
+
+class ExpertBCLoss(LossModule):
+    """``-bc_coeff * E[log pi(M(s, s') | s)]`` over expert state pairs.
+
+    With an ``inverse_model``, each expert pair ``(s, s')`` is labelled with
+    ``M(s, s') = argmax_a P_i(a | s, s')`` (no gradient reaches the inverse model)
+    and only ``observation`` and ``("next", observation)`` are read: expert actions
+    are never looked at. Without one (the IL baseline, or demonstrations that do
+    carry actions) the label is read from the ``action`` key; set it to where the
+    true actions live, e.g. ``loss.set_keys(action="expert_action")``.
+
+    Args:
+        actor_network: a probabilistic policy (e.g. a TorchRL ``ProbabilisticActor``);
+            its distribution is built from the expert states with ``get_dist``.
+        inverse_model: the action-inference model M, or ``None`` to clone the
+            actions stored under the ``action`` key.
+
+    Keyword Args:
+        bc_coeff: weight of the term (authors' Taxi code: 2.0). A buffer, so a
+            hook can switch it on later (the paper's Atari start delay).
+
+    Returns (``forward``): ``loss_bc`` and the detached diagnostics
+    ``bc_log_prob`` (mean log-likelihood of the labels) and ``bc_batch_size``.
+    An empty batch gives a zero loss.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_hybrid.modules import (DualInverseDynamics, OneHotEncoder,
+        ...                                     make_tabular_actor_critic)
+        >>> actor, _ = make_tabular_actor_critic(10, 4)
+        >>> idm = DualInverseDynamics(OneHotEncoder(10), n_actions=4, d_state=8, d=8)
+        >>> loss = ExpertBCLoss(actor, idm, bc_coeff=2.0)
+        >>> demos = TensorDict({"observation": torch.tensor([1, 2]),
+        ...                     ("next", "observation"): torch.tensor([2, 3])}, [2])
+        >>> loss(demos)["loss_bc"].backward()
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Tensordict keys read by the loss; rename them with ``set_keys``.
+
+        Attributes:
+            observation: the expert state s. Defaults to ``"observation"``.
+            next_observation: the expert state s'. Defaults to ``("next", "observation")``.
+            action: labels to clone when no inverse model is given. Defaults to ``"action"``.
+            inferred_action: where the inferred labels are written in the input
+                tensordict, for inspection. Defaults to ``"inferred_action"``.
+        """
+
+        observation: NestedKey = "observation"
+        next_observation: NestedKey = ("next", "observation")
+        action: NestedKey = "action"
+        inferred_action: NestedKey = "inferred_action"
+
+    default_keys = _AcceptedKeys
+    tensor_keys: _AcceptedKeys
+    out_keys = ["loss_bc", "bc_log_prob", "bc_batch_size"]
+
+    def __init__(
+        self,
+        actor_network: ProbabilisticTensorDictSequential,
+        inverse_model: InverseDynamicsModel | None = None,
+        *,
+        bc_coeff: float = 1.0,
+    ):
+        super().__init__()
+        if not hasattr(actor_network, "get_dist"):
+            raise TypeError("actor_network must be a probabilistic policy with a `get_dist` method")
+        self.actor_network = actor_network
+        self.inverse_model = inverse_model
+        self.register_coeff_buffer("bc_coeff", bc_coeff)
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    @property
+    def in_keys(self):
+        keys = list(self.actor_network.in_keys)
+        if self.inverse_model is not None:
+            keys.append(self.tensor_keys.next_observation)
+        else:
+            keys.append(self.tensor_keys.action)
+        return list(dict.fromkeys(keys))
+
+    def labels(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """The actions to clone: M(s, s') with an inverse model, else the action key."""
+        if self.inverse_model is None:
+            return tensordict.get(self.tensor_keys.action).long()
+        obs = tensordict.get(self.tensor_keys.observation)
+        next_obs = tensordict.get(self.tensor_keys.next_observation)
+        return self.inverse_model.infer(obs, next_obs)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        n = tensordict.numel()
+        if n == 0:
+            zero = torch.zeros((), device=self.bc_coeff.device)
+            return TensorDict({"loss_bc": zero, "bc_log_prob": zero, "bc_batch_size": zero}, [])
+        labels = self.labels(tensordict)
+        if self.inverse_model is not None:
+            tensordict.set(self.tensor_keys.inferred_action, labels)
+        # Only the actor's inputs go in: the actor may write its own "action".
+        dist = self.actor_network.get_dist(tensordict.select(*self.actor_network.in_keys))
+        log_prob = dist.log_prob(labels)
+        return TensorDict(
+            {
+                "loss_bc": -self.bc_coeff * log_prob.mean(),
+                "bc_log_prob": log_prob.mean().detach(),
+                "bc_batch_size": torch.tensor(float(n)),
+            },
+            [],
+        )
+
+
+class PolicyEntropyLoss(LossModule):
+    """``-entropy_coeff * E[H(pi(.|s))]`` on the agent's own states.
+
+    The BC-only baselines keep the A2C entropy bonus (the authors' BC-Dual is the
+    hybrid agent with the policy-gradient and value weights set to 0), so they
+    keep exploring and their inverse model keeps getting varied transitions.
+
+    Args:
+        actor_network: a probabilistic policy with ``get_dist``.
+
+    Keyword Args:
+        entropy_coeff: weight of the bonus.
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Attributes:
+        observation: unused marker; the actor's own ``in_keys`` are read.
+        """
+
+        observation: NestedKey = "observation"
+
+    default_keys = _AcceptedKeys
+    out_keys = ["loss_entropy", "entropy"]
+
+    def __init__(self, actor_network: ProbabilisticTensorDictSequential, *, entropy_coeff: float = 0.01):
+        super().__init__()
+        self.actor_network = actor_network
+        self.register_coeff_buffer("entropy_coeff", entropy_coeff)
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    @property
+    def in_keys(self):
+        return list(self.actor_network.in_keys)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        dist = self.actor_network.get_dist(tensordict.select(*self.actor_network.in_keys))
+        entropy = dist.entropy().mean()
+        return TensorDict({"loss_entropy": -self.entropy_coeff * entropy, "entropy": entropy.detach()}, [])

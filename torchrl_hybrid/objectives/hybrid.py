@@ -1,0 +1,94 @@
+"""Composition of an RL loss with the inverse-dynamics and expert BC losses."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
+from torchrl.objectives import LossModule
+
+__all__ = ["HybridLoss"]
+
+
+class HybridLoss(LossModule):
+    """Runs each component loss on its own batch and merges their outputs.
+
+    The input holds two sub-tensordicts with independent batch sizes: the
+    agent's own transitions (``agent`` key) feed the RL loss and the inverse-
+    dynamics loss, the expert pairs (``expert`` key) feed the BC loss. This is
+    the paper's objective ``U_hybrid`` plus the inverse-model loss. Any part may
+    be ``None``: ``rl_loss=None`` gives the BC-only baselines, ``bc_loss=None``
+    plain RL (then a plain collector batch is accepted too). The components stay ordinary TorchRL losses; use them directly in
+    another trainer if this container does not fit.
+
+    Args:
+        rl_loss: e.g. TorchRL's ``A2CLoss`` or ``ClipPPOLoss``.
+        inverse_dynamics_loss: e.g. :class:`DualInverseDynamicsLoss`.
+        bc_loss: :class:`ExpertBCLoss`.
+
+    Examples:
+        >>> # batch = TensorDict({"agent": collector_batch, "expert": expert_batch}, [])
+        >>> # losses = HybridLoss(a2c, idm_loss, bc_loss)(batch)
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Attributes:
+        agent: sub-tensordict with the agent's transitions. Defaults to ``"agent"``.
+        expert: sub-tensordict with the expert pairs. Defaults to ``"expert"``.
+        """
+
+        agent: NestedKey = "agent"
+        expert: NestedKey = "expert"
+
+    default_keys = _AcceptedKeys
+    tensor_keys: _AcceptedKeys
+
+    def __init__(
+        self,
+        rl_loss: LossModule | None = None,
+        inverse_dynamics_loss: LossModule | None = None,
+        bc_loss: LossModule | None = None,
+    ):
+        super().__init__()
+        if rl_loss is None and bc_loss is None:
+            raise ValueError("HybridLoss needs at least an rl_loss or a bc_loss to train a policy")
+        self.rl_loss = rl_loss
+        self.inverse_dynamics_loss = inverse_dynamics_loss
+        self.bc_loss = bc_loss
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    def make_value_estimator(self, value_type=None, **hyperparams):
+        if self.rl_loss is not None:
+            self.rl_loss.make_value_estimator(value_type, **hyperparams)
+        return self
+
+    @property
+    def in_keys(self):
+        return [self.tensor_keys.agent, self.tensor_keys.expert]
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        out = TensorDict({}, [])
+        parts = (
+            (self.rl_loss, self.tensor_keys.agent),
+            (self.inverse_dynamics_loss, self.tensor_keys.agent),
+            (self.bc_loss, self.tensor_keys.expert),
+        )
+        for loss, key in parts:
+            if loss is None:
+                continue
+            sub = tensordict.get(key, None)
+            if sub is None and key == self.tensor_keys.agent and self.tensor_keys.expert not in tensordict.keys():
+                sub = tensordict  # a plain collector batch: no expert part
+            if sub is None:
+                raise KeyError(
+                    f"{type(loss).__name__} needs the sub-tensordict {key!r}; the trainer's "
+                    "ExpertBatchHook builds it (or pass TensorDict({'agent': ..., 'expert': ...}, []))."
+                )
+            for name, value in loss(sub).items():
+                if name in out.keys():
+                    raise RuntimeError(f"two component losses both return {name!r}")
+                out.set(name, value)
+        return out

@@ -1,0 +1,221 @@
+"""TorchRL trainer hooks that add the hybrid agent's behaviour to ``Trainer``."""
+from __future__ import annotations
+
+import csv
+import math
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import ReplayBuffer
+from torchrl.objectives import LossModule
+from torchrl.trainers import Trainer, TrainerHookBase
+
+__all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "MetricsHook"]
+
+
+class ExpertBatchHook(TrainerHookBase):
+    """Pairs every optimisation batch with a batch of expert state pairs.
+
+    Registered at ``process_optim_batch``: the collected batch becomes
+    ``TensorDict({agent_key: batch, expert_key: expert_batch}, [])``, the input
+    :class:`~torchrl_hybrid.objectives.HybridLoss` reads. If the buffer's sampler
+    has an ``observe`` method (e.g. :class:`~torchrl_hybrid.data.VisitedStateSampler`),
+    it is first shown the agent's states of the batch.
+
+    Args:
+        expert_buffer: replay buffer of expert pairs.
+        batch_size: expert pairs per optimisation step.
+        state_key: the agent's state entry shown to ``observe``.
+    """
+
+    def __init__(
+        self,
+        expert_buffer: ReplayBuffer,
+        batch_size: int,
+        *,
+        agent_key: str = "agent",
+        expert_key: str = "expert",
+        state_key="observation",
+    ):
+        self.expert_buffer = expert_buffer
+        self.batch_size = batch_size
+        self.agent_key, self.expert_key, self.state_key = agent_key, expert_key, state_key
+
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase:
+        sampler = self.expert_buffer.sampler
+        if hasattr(sampler, "observe"):
+            sampler.observe(batch.get(self.state_key))
+        expert = self.expert_buffer.sample(self.batch_size)
+        return TensorDict({self.agent_key: batch, self.expert_key: expert}, [])
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"sampler": self.expert_buffer.sampler.state_dict()}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.expert_buffer.sampler.load_state_dict(state_dict["sampler"])
+
+    def register(self, trainer: Trainer, name: str = "expert_batch") -> None:
+        trainer.register_op("process_optim_batch", self)
+        trainer.register_module(name, self)
+
+
+class CurriculumHook(TrainerHookBase):
+    """Tells a :class:`~torchrl_hybrid.data.CurriculumSampler` how many frames have
+    been collected, after every collection (``post_steps``)."""
+
+    def __init__(self, sampler):
+        self.sampler = sampler
+        self._trainer: Trainer | None = None
+
+    def __call__(self) -> None:
+        self.sampler.update(self._trainer.collected_frames)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        return
+
+    def register(self, trainer: Trainer, name: str = "curriculum") -> None:
+        self._trainer = trainer
+        trainer.register_op("post_steps", self)
+
+
+class DelayedCoefficientHook(TrainerHookBase):
+    """Keeps a loss coefficient at 0 until ``start_frames`` frames were collected,
+    then sets it to ``value`` (the paper uses the BC term only after 100k frames).
+
+    Args:
+        loss: the loss module that owns the coefficient buffer.
+        name: the buffer's name, e.g. ``"bc_coeff"``.
+        value: the coefficient once switched on.
+        start_frames: frames before switching on.
+    """
+
+    def __init__(self, loss: LossModule, name: str, value: float, start_frames: int):
+        if not isinstance(getattr(loss, name, None), torch.Tensor):
+            raise ValueError(f"{type(loss).__name__} has no coefficient buffer {name!r}")
+        self.loss, self.name, self.value, self.start_frames = loss, name, float(value), int(start_frames)
+        self._trainer: Trainer | None = None
+        self._set(0.0 if self.start_frames > 0 else self.value)
+
+    def _set(self, value: float) -> None:
+        getattr(self.loss, self.name).fill_(value)
+
+    def __call__(self) -> None:
+        on = self._trainer.collected_frames >= self.start_frames
+        self._set(self.value if on else 0.0)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        return
+
+    def register(self, trainer: Trainer, name: str = "delayed_coeff") -> None:
+        self._trainer = trainer
+        trainer.register_op("post_steps", self)
+
+
+class MetricsHook(TrainerHookBase):
+    """Writes the learning curve: one CSV row every ``every_frames`` frames.
+
+    Each row has ``frames``, ``return_mean`` (mean undiscounted return of the
+    training episodes that ended since the previous row), ``episodes``, the
+    trainer's averaged losses and diagnostics of the last optimisation step,
+    ``time_s``, and whatever ``evaluator()`` returns (e.g. a greedy evaluation
+    return, the inverse model's accuracy on the demos). Rows also go to the
+    trainer's TorchRL logger and the progress bar.
+
+    Args:
+        csv_path: where to write the CSV.
+        every_frames: frames between rows.
+        evaluator: callable returning a dict of extra scalar columns.
+        pbar_keys: columns shown in the progress bar.
+    """
+
+    def __init__(
+        self,
+        csv_path: str | Path,
+        every_frames: int,
+        evaluator: Callable[[], dict[str, float]] | None = None,
+        pbar_keys: tuple[str, ...] = ("return_mean",),
+    ):
+        self.csv_path = Path(csv_path)
+        self.every_frames = int(every_frames)
+        self.evaluator = evaluator
+        self.pbar_keys = pbar_keys
+        self.rows: list[dict[str, float]] = []
+        self._returns: list[torch.Tensor] = []
+        self._losses: dict[str, float] = {}
+        self._next = 0
+        self._t0 = time.perf_counter()
+        self._trainer: Trainer | None = None
+        self._fieldnames: list[str] | None = None
+
+    def collect(self, batch: TensorDictBase) -> None:
+        done = batch.get(("next", "done")).squeeze(-1)
+        if done.any():
+            self._returns.append(batch.get(("next", "episode_reward")).squeeze(-1)[done])
+
+    def losses(self, optim_steps: int, average_losses: TensorDictBase | None) -> None:
+        if average_losses is not None:
+            self._losses = {k: float(v.detach()) for k, v in average_losses.items() if v.numel() == 1}
+
+    def row(self) -> dict[str, float]:
+        """Computes and writes one row now."""
+        returns = torch.cat(self._returns) if self._returns else torch.zeros(0)
+        self._returns = []
+        row = {
+            "frames": int(self._trainer.collected_frames) if self._trainer else 0,
+            "return_mean": float(returns.mean()) if returns.numel() else math.nan,
+            "episodes": int(returns.numel()),
+        }
+        row.update(self._losses)
+        if self.evaluator is not None:
+            row.update(self.evaluator())
+        row["time_s"] = round(time.perf_counter() - self._t0, 3)
+        self._write(row)
+        return row
+
+    def _write(self, row: dict[str, float]) -> None:
+        self.rows.append(row)
+        new = self._fieldnames is None
+        if new:
+            self._fieldnames = list(row.keys())
+            self.csv_path.parent.mkdir(parents=True, exist_ok=True)
+        with self.csv_path.open("w" if new else "a", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=self._fieldnames, extrasaction="ignore", restval="")
+            if new:
+                writer.writeheader()
+            writer.writerow(row)
+
+    def __call__(self, batch: TensorDictBase) -> dict[str, Any] | None:
+        self.collect(batch)
+        frames = self._trainer.collected_frames
+        if frames < self._next and frames < self._trainer.total_frames:
+            return None
+        self._next = frames + self.every_frames
+        row = self.row()
+        logger = self._trainer.logger
+        if logger is not None:
+            for k, v in row.items():
+                if k != "frames" and isinstance(v, (int, float)) and math.isfinite(v):
+                    logger.log_scalar(f"curve/{k}", v, step=frames)
+        shown = {k: row[k] for k in self.pbar_keys if k in row and math.isfinite(row[k])}
+        return {**shown, "log_pbar": True} if shown else None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"next": self._next}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._next = state_dict["next"]
+
+    def register(self, trainer: Trainer, name: str = "metrics") -> None:
+        self._trainer = trainer
+        trainer.register_op("post_optim_complete_log", self.losses)
+        trainer.register_op("post_steps_log", self)
+        trainer.register_module(name, self)

@@ -1,0 +1,197 @@
+"""The one pipeline behind every agent variant: losses and trainer assembly."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torchrl.objectives import A2CLoss, ValueEstimators
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.trainers import DefaultOptimizationStepper, OptimizationStepper, Trainer
+
+from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
+from torchrl_hybrid.objectives import (
+    DualInverseDynamicsLoss,
+    ExpertBCLoss,
+    HybridLoss,
+    InverseDynamicsLoss,
+    PolicyEntropyLoss,
+)
+
+__all__ = ["GroupClipOptimizationStepper", "Variant", "param_groups", "VARIANTS", "get_variant", "make_hybrid_loss", "make_trainer"]
+
+
+@dataclass(frozen=True)
+class Variant:
+    """What an agent variant switches on.
+
+    Attributes:
+        rl: train with the A2C loss; without it the policy still gets the
+            entropy bonus (the authors' BC baselines are the hybrid agent with
+            policy-gradient and value weights 0).
+        bc: ``"inferred"`` (clone actions inferred by the inverse model),
+            ``"true"`` (clone the true expert actions: IL) or ``None``.
+        inverse_model: ``"dual"``, ``"mlp"`` or ``None``.
+    """
+
+    name: str
+    rl: bool
+    bc: str | None
+    inverse_model: str | None
+    description: str
+
+
+VARIANTS: dict[str, Variant] = {
+    v.name: v
+    for v in (
+        Variant("hybrid_dual", True, "inferred", "dual", "A2C + BC on actions inferred by the dual model (the paper's agent)"),
+        Variant("hybrid_mlp", True, "inferred", "mlp", "A2C + BC on actions inferred by the MLP inverse model"),
+        Variant("bc_dual", False, "inferred", "dual", "BC on actions inferred by the dual model, no RL signal"),
+        Variant("bc_mlp", False, "inferred", "mlp", "BC on actions inferred by the MLP model, no RL signal"),
+        Variant("il", False, "true", None, "BC on the TRUE expert actions (imitation learning upper bound)"),
+        Variant("a2c", True, None, None, "plain A2C, ignores the demonstrations"),
+    )
+}
+
+
+def get_variant(name: str) -> Variant:
+    if name not in VARIANTS:
+        raise ValueError(f"unknown variant {name!r}; choose one of: {', '.join(VARIANTS)}")
+    return VARIANTS[name]
+
+
+def make_hybrid_loss(
+    variant: Variant,
+    actor,
+    critic,
+    inverse_model: InverseDynamicsModel | None,
+    *,
+    gamma: float = 0.99,
+    critic_coeff: float = 0.2,
+    entropy_coeff: float = 0.5,
+    idm_action_coeff: float = 2.0,
+    idm_embedding_coeff: float = 0.1,
+    idm_forward_coeff: float = 0.0,
+    bc_coeff: float = 2.0,
+    expert_action_key: str = "expert_action",
+) -> HybridLoss:
+    """Builds the variant's :class:`HybridLoss`.
+
+    The A2C part is TorchRL's ``A2CLoss`` with the n-step return of each rollout
+    (TD(1) over the rollout, bootstrapped from the critic at its end), an L2
+    critic loss weighted ``critic_coeff`` and an entropy bonus ``entropy_coeff``.
+    """
+    if (variant.inverse_model is None) != (inverse_model is None):
+        raise ValueError(
+            f"variant {variant.name!r} {'needs' if variant.inverse_model else 'takes no'} inverse model"
+        )
+    rl_loss = None
+    if variant.rl:
+        rl_loss = A2CLoss(
+            actor,
+            critic,
+            entropy_coeff=entropy_coeff,
+            critic_coeff=critic_coeff,
+            loss_critic_type="l2",
+        )
+        rl_loss.make_value_estimator(ValueEstimators.TD1, gamma=gamma)
+    elif entropy_coeff:
+        rl_loss = PolicyEntropyLoss(actor, entropy_coeff=entropy_coeff)
+    idm_loss = None
+    if inverse_model is not None:
+        if variant.inverse_model == "dual":
+            idm_loss = DualInverseDynamicsLoss(
+                inverse_model,
+                action_coeff=idm_action_coeff,
+                embedding_coeff=idm_embedding_coeff,
+                forward_coeff=idm_forward_coeff,
+            )
+        else:
+            idm_loss = InverseDynamicsLoss(inverse_model, action_coeff=idm_action_coeff)
+    bc_loss = None
+    if variant.bc == "inferred":
+        bc_loss = ExpertBCLoss(actor, inverse_model, bc_coeff=bc_coeff)
+    elif variant.bc == "true":
+        bc_loss = ExpertBCLoss(actor, None, bc_coeff=bc_coeff)
+        bc_loss.set_keys(action=expert_action_key)
+    return HybridLoss(rl_loss, idm_loss, bc_loss)
+
+
+class GroupClipOptimizationStepper(OptimizationStepper):
+    """One optimiser step that clips the gradient norm of each parameter group
+    separately (e.g. the policy's and the inverse model's), so that a large
+    policy-gradient step does not shrink the inverse model's update, as a single
+    global clip would.
+
+    Args:
+        max_norm: the clip applied to each group's gradient norm.
+    """
+
+    def __init__(self, max_norm: float):
+        self.max_norm = float(max_norm)
+
+    def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
+        losses_td = trainer.compute_loss(sub_batch)
+        sum(v for k, v in losses_td.items() if k.startswith("loss")).backward()
+        for i, group in enumerate(trainer.optimizer.param_groups):
+            gn = nn.utils.clip_grad_norm_(group["params"], self.max_norm)
+            losses_td[f"grad_norm_{group.get('name', i)}"] = gn.detach()
+        trainer.optimizer.step()
+        trainer.optimizer.zero_grad()
+        return losses_td.detach()
+
+
+def make_trainer(
+    *,
+    collector,
+    loss: HybridLoss,
+    optimizer: torch.optim.Optimizer,
+    total_frames: int,
+    clip_norm: float | None = 0.5,
+    logger=None,
+    progress_bar: bool = True,
+    save_trainer_file=None,
+    save_trainer_interval: int = 10**9,
+    seed: int | None = None,
+    clip_per_group: bool = False,
+) -> Trainer:
+    """A TorchRL ``Trainer`` with one optimisation step per collected batch.
+
+    With ``clip_per_group`` each optimiser parameter group's gradient is clipped
+    to ``clip_norm`` on its own (:class:`GroupClipOptimizationStepper`); otherwise
+    the global norm is (TorchRL's default stepper).
+    """
+    if clip_per_group and clip_norm is not None:
+        stepper = GroupClipOptimizationStepper(clip_norm)
+    else:
+        stepper = DefaultOptimizationStepper()
+    return Trainer(
+        collector=collector,
+        total_frames=total_frames,
+        frame_skip=1,
+        optim_steps_per_batch=1,
+        loss_module=loss,
+        optimizer=optimizer,
+        optimization_stepper=stepper,
+        logger=logger,
+        clip_grad_norm=clip_norm is not None,
+        clip_norm=clip_norm,
+        progress_bar=progress_bar,
+        save_trainer_file=save_trainer_file,
+        save_trainer_interval=save_trainer_interval,
+        log_interval=10**12,
+        seed=seed,
+    )
+
+
+def param_groups(loss: HybridLoss) -> list[dict]:
+    """Optimiser parameter groups: ``"policy"`` (actor and critic) and
+    ``"inverse_model"``, without duplicates."""
+    idm = loss.inverse_dynamics_loss
+    idm_params = list(idm.parameters()) if idm is not None else []
+    idm_ids = {id(p) for p in idm_params}
+    policy = [p for p in loss.parameters() if id(p) not in idm_ids]
+    groups = [{"params": policy, "name": "policy"}]
+    if idm_params:
+        groups.append({"params": idm_params, "name": "inverse_model"})
+    return groups

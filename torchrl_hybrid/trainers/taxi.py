@@ -1,0 +1,311 @@
+"""The Taxi experiment: configuration, assembly and one training run.
+
+``recipes/taxi.py`` is a thin Hydra front-end over :func:`train_taxi`; tests and
+notebooks call :func:`train_taxi` directly with a :class:`TaxiConfig`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torchrl.collectors import Collector
+from torchrl.record.loggers import get_logger
+
+from torchrl_hybrid.data import (
+    EXPERT_ACTION_KEY,
+    CurriculumSampler,
+    VisitedStateSampler,
+    apply_demo_noise,
+    load_demos,
+    make_expert_buffer,
+    save_demos,
+    tabular_state_pairs,
+    tabular_trajectories,
+)
+from torchrl_hybrid.envs import BACKENDS, TabularModel, make_toy_text_env
+from torchrl_hybrid.experts import expected_return, optimal_policy
+from torchrl_hybrid.modules import (
+    DualInverseDynamics,
+    MLPInverseDynamics,
+    OneHotEncoder,
+    make_tabular_actor_critic,
+)
+from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
+from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook, MetricsHook
+from torchrl_hybrid.trainers.hybrid import get_variant, make_hybrid_loss, make_trainer, param_groups
+from torchrl_hybrid.utils.plotting import plot_learning_curve
+
+__all__ = ["TaxiConfig", "config_from_dict", "make_taxi_demos", "train_taxi"]
+
+RHOS = ("visited", "uniform", "curriculum")
+DEMO_FORMS = ("per_state", "trajectories")
+LOGGERS = ("csv", "tensorboard", "wandb", "none")
+
+
+@dataclass
+class EnvConfig:
+    env_id: str = "Taxi-v4"
+    num_envs: int = 16
+    backend: str = "auto"
+    max_episode_steps: int = 50
+
+
+@dataclass
+class DemoConfig:
+    form: str = "per_state"
+    num_trajectories: int = 100
+    path: str | None = None
+    save_path: str | None = None
+    eta: float = 0.0
+    epsilon: float = 0.0
+    rho: str = "visited"
+    batch_size: int = 32
+    curriculum_k0: int = 10
+    curriculum_frames_per_step: int = 8000
+
+
+@dataclass
+class LossConfig:
+    n_steps: int = 2
+    gamma: float = 0.99
+    critic_coeff: float = 0.2
+    entropy_coeff: float = 0.5
+    idm_action_coeff: float = 2.0
+    idm_embedding_coeff: float = 0.1
+    idm_forward_coeff: float = 0.0
+    bc_coeff: float = 2.0
+    bc_start_frames: int = 0
+
+
+@dataclass
+class OptimConfig:
+    lr: float = 1e-3
+    eps: float = 1e-5
+    alpha: float = 0.99
+    max_grad_norm: float = 0.5
+    clip: str = "global"
+
+
+@dataclass
+class LoggerConfig:
+    backend: str = "csv"
+    log_every_frames: int = 2000
+    eval_episodes: int = 100
+    final_eval_episodes: int = 300
+    progress_bar: bool = True
+    checkpoint: bool = True
+
+
+@dataclass
+class TaxiConfig:
+    """Every knob of a Taxi run; ``recipes/config/taxi.yaml`` documents each one."""
+
+    variant: str = "hybrid_dual"
+    seed: int = 0
+    total_frames: int = 80_000
+    rank: int = 2
+    d_state: int = 128
+    d: int = 128
+    mlp_layers: int = 2
+    identity_embedding: bool = True
+    out_dir: str = "outputs/taxi"
+    threads: int = 1
+    env: EnvConfig = field(default_factory=EnvConfig)
+    demo: DemoConfig = field(default_factory=DemoConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
+
+    def validate(self) -> "TaxiConfig":
+        """Raises ``ValueError`` naming the bad setting and what is allowed."""
+        get_variant(self.variant)
+
+        def need(ok: bool, msg: str):
+            if not ok:
+                raise ValueError(msg)
+
+        need(self.rank >= 1, f"rank must be an integer >= 1, got {self.rank}")
+        need(self.mlp_layers >= 1, f"mlp_layers must be >= 1, got {self.mlp_layers}")
+        for name in ("eta", "epsilon"):
+            v = getattr(self.demo, name)
+            need(0.0 <= v < 1.0, f"demo.{name} must be in [0, 1), got {v}")
+        need(self.demo.rho in RHOS, f"demo.rho must be one of {RHOS}, got {self.demo.rho!r}")
+        need(self.demo.form in DEMO_FORMS, f"demo.form must be one of {DEMO_FORMS}, got {self.demo.form!r}")
+        need(self.env.backend in BACKENDS, f"env.backend must be one of {BACKENDS}, got {self.env.backend!r}")
+        need(self.env.num_envs >= 1, f"env.num_envs must be >= 1, got {self.env.num_envs}")
+        need(self.env.max_episode_steps >= 1, f"env.max_episode_steps must be >= 1, got {self.env.max_episode_steps}")
+        need(self.loss.n_steps >= 1, f"loss.n_steps must be >= 1, got {self.loss.n_steps}")
+        need(
+            self.total_frames >= self.frames_per_batch,
+            f"total_frames={self.total_frames} is less than one batch (env.num_envs * loss.n_steps = {self.frames_per_batch})",
+        )
+        need(self.logger.backend in LOGGERS, f"logger.backend must be one of {LOGGERS}, got {self.logger.backend!r}")
+        need(self.logger.eval_episodes >= 1 and self.logger.final_eval_episodes >= 1, "eval episode counts must be >= 1")
+        return self
+
+    @property
+    def frames_per_batch(self) -> int:
+        return self.env.num_envs * self.loss.n_steps
+
+
+def config_from_dict(d: dict[str, Any]) -> TaxiConfig:
+    """Builds a :class:`TaxiConfig` from nested dicts (e.g. Hydra's), rejecting unknown keys."""
+
+    def build(cls, values: dict[str, Any], prefix: str):
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        kwargs = {}
+        for k, v in values.items():
+            if k not in fields:
+                raise ValueError(f"unknown config key {prefix + k!r}; known keys: {', '.join(fields)}")
+            ftype = fields[k].default_factory if fields[k].default_factory is not dataclasses.MISSING else None
+            kwargs[k] = build(ftype, v, f"{prefix}{k}.") if dataclasses.is_dataclass(ftype) and isinstance(v, dict) else v
+        return cls(**kwargs)
+
+    return build(TaxiConfig, dict(d), "")
+
+
+def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Generator):
+    """The demo pairs of a run: the optimal expert's (or a file's), then noise."""
+    policy, optimal = optimal_policy(model)
+    if cfg.demo.path:
+        demos, _ = load_demos(cfg.demo.path, obs_shape=(), obs_dtype=torch.long)
+        s = torch.cat([demos["observation"], demos["next", "observation"]])
+        if s.min() < 0 or s.max() >= model.n_states:
+            raise ValueError(f"{cfg.demo.path}: states outside [0, {model.n_states}); demos are for another env")
+    elif cfg.demo.form == "per_state":
+        demos = tabular_state_pairs(model, policy)
+    else:
+        demos = tabular_trajectories(model, policy, cfg.demo.num_trajectories, cfg.env.max_episode_steps, generator)
+    if cfg.demo.eta or cfg.demo.epsilon:
+        demos = apply_demo_noise(demos, model, optimal, eta=cfg.demo.eta, epsilon=cfg.demo.epsilon, generator=generator)
+    if cfg.demo.save_path:
+        save_demos(demos, cfg.demo.save_path, {"env_id": cfg.env.env_id, "eta": cfg.demo.eta, "epsilon": cfg.demo.epsilon})
+    return demos, policy
+
+
+def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
+    """Trains one agent on Taxi and writes ``metrics.csv``, ``summary.json``,
+    ``learning_curve.png`` and a checkpoint into ``cfg.out_dir``. Returns the summary."""
+    cfg.validate()
+    logging.getLogger("torchrl").setLevel(logging.WARNING)
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    variant = get_variant(cfg.variant)
+    out = Path(cfg.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+
+    model = TabularModel.from_gym(cfg.env.env_id)
+    S, A = model.n_states, model.n_actions
+    demos, expert = make_taxi_demos(cfg, model, gen)
+
+    env = make_toy_text_env(
+        cfg.env.env_id, cfg.env.num_envs, backend=cfg.env.backend,
+        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed,
+    )
+    eval_env = make_toy_text_env(
+        cfg.env.env_id, cfg.logger.eval_episodes, backend=cfg.env.backend,
+        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 10_000,
+    )
+
+    actor, critic = make_tabular_actor_critic(S, A, identity_embedding=cfg.identity_embedding)
+    inverse_model = None
+    if variant.inverse_model == "dual":
+        inverse_model = DualInverseDynamics(
+            OneHotEncoder(S), A, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
+            n_states=S if cfg.loss.idm_forward_coeff > 0 else None,
+        )
+    elif variant.inverse_model == "mlp":
+        inverse_model = MLPInverseDynamics(OneHotEncoder(S), A, d_state=cfg.d_state, hidden=cfg.d, num_layers=cfg.mlp_layers)
+
+    lc = cfg.loss
+    loss = make_hybrid_loss(
+        variant, actor, critic, inverse_model,
+        gamma=lc.gamma, critic_coeff=lc.critic_coeff, entropy_coeff=lc.entropy_coeff,
+        idm_action_coeff=lc.idm_action_coeff, idm_embedding_coeff=lc.idm_embedding_coeff,
+        idm_forward_coeff=lc.idm_forward_coeff, bc_coeff=lc.bc_coeff, expert_action_key=EXPERT_ACTION_KEY,
+    )
+    optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
+
+    collector = Collector(env, actor, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames)
+    logger = None
+    if cfg.logger.backend != "none":
+        logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"), experiment_name=f"{cfg.variant}_s{cfg.seed}")
+    trainer = make_trainer(
+        collector=collector, loss=loss, optimizer=optimizer, total_frames=cfg.total_frames,
+        clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
+        save_trainer_file=out / "checkpoint.pt" if cfg.logger.checkpoint else None,
+        save_trainer_interval=max(cfg.total_frames // 4, cfg.frames_per_batch),
+        clip_per_group=cfg.optim.clip == "per_group",
+    )
+
+    expert_buffer = None
+    if variant.bc is not None:
+        if cfg.demo.rho == "visited":
+            sampler = VisitedStateSampler(S)
+        elif cfg.demo.rho == "curriculum":
+            sampler = CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
+        else:
+            sampler = None
+        expert_buffer = make_expert_buffer(demos, sampler=sampler, include_expert_actions=variant.bc == "true")
+        ExpertBatchHook(expert_buffer, cfg.demo.batch_size).register(trainer)
+        if isinstance(sampler, CurriculumSampler):
+            CurriculumHook(sampler).register(trainer)
+        if lc.bc_start_frames > 0:
+            DelayedCoefficientHook(loss.bc_loss, "bc_coeff", lc.bc_coeff, lc.bc_start_frames).register(trainer)
+
+    def evaluator(episodes_env=eval_env):
+        returns = evaluate_policy(episodes_env, actor, cfg.env.max_episode_steps)
+        row = {"eval_return": float(returns.mean())}
+        if inverse_model is not None and EXPERT_ACTION_KEY in demos.keys():
+            row["idm_accuracy"] = inverse_model_accuracy(inverse_model, demos)
+        return row
+
+    metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator, pbar_keys=("return_mean", "eval_return"))
+    metrics.register(trainer)
+
+    t0 = time.perf_counter()
+    trainer.train()
+    train_time = time.perf_counter() - t0
+
+    final_env = make_toy_text_env(
+        cfg.env.env_id, cfg.logger.final_eval_episodes, backend=cfg.env.backend,
+        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 20_000,
+    )
+    final_returns = evaluate_policy(final_env, actor, cfg.env.max_episode_steps)
+    summary = {
+        "variant": cfg.variant,
+        "seed": cfg.seed,
+        "frames": int(trainer.collected_frames),
+        "final_return": float(final_returns.mean()),
+        "final_return_std": float(final_returns.std()),
+        "final_eval_episodes": int(final_returns.numel()),
+        "optimal_return": expected_return(model, expert),
+        "idm_accuracy": inverse_model_accuracy(inverse_model, demos)
+        if inverse_model is not None and EXPERT_ACTION_KEY in demos.keys() else None,
+        "train_time_s": round(train_time, 2),
+        "frames_per_s": round(trainer.collected_frames / train_time, 1),
+        "config": dataclasses.asdict(cfg),
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    torch.save(
+        {"actor": actor.state_dict(), "critic": critic.state_dict(),
+         "inverse_model": None if inverse_model is None else inverse_model.state_dict(),
+         "config": dataclasses.asdict(cfg)},
+        out / "model.pt",
+    )
+    plot_learning_curve(
+        metrics.rows, out / "learning_curve.png",
+        title=f"Taxi, {cfg.variant}, seed {cfg.seed}", optimal=summary["optimal_return"],
+    )
+    for e in (eval_env, final_env):
+        e.close()
+    return summary
