@@ -146,7 +146,7 @@ def validate_demos(
     for key in ("observation", ("next", "observation")):
         if key not in demos.keys(include_nested=True):
             raise ValueError(f"{source}: missing entry {key!r}; a demo dataset needs observation and ('next', 'observation').")
-    if demos.numel() == 0:
+    if demos.batch_size.numel() == 0:
         raise ValueError(f"{source}: the dataset is empty (0 pairs); regenerate it or point to another file.")
     for key in ("observation", ("next", "observation")):
         x = demos.get(key)
@@ -213,7 +213,7 @@ def make_expert_buffer(
     elif EXPERT_ACTION_KEY not in demos.keys():
         raise ValueError(f"include_expert_actions=True but the demos have no {EXPERT_ACTION_KEY!r} entry")
     rb = ReplayBuffer(
-        storage=LazyTensorStorage(demos.numel()),
+        storage=LazyTensorStorage(demos.batch_size.numel()),
         sampler=sampler if sampler is not None else RandomSampler(),
         batch_size=batch_size,
     )

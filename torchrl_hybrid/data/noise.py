@@ -54,7 +54,7 @@ def apply_demo_noise(
         drop = states[torch.randperm(len(states), generator=generator)[:n_drop]]
         demos = demos[~torch.isin(demos["observation"], drop)]
     if epsilon > 0:
-        n_bad = int(epsilon * demos.numel())
+        n_bad = int(epsilon * demos.batch_size.numel())
         s = demos["observation"]
         candidates = torch.nonzero((~optimal[s]).any(-1)).squeeze(-1)
         if len(candidates) < n_bad:

@@ -107,7 +107,7 @@ class ExpertBCLoss(LossModule):
         return self.inverse_model.infer(obs, next_obs)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        n = tensordict.numel()
+        n = tensordict.batch_size.numel()
         if n == 0:
             zero = torch.zeros((), device=self.bc_coeff.device)
             return TensorDict({"loss_bc": zero, "bc_log_prob": zero, "bc_batch_size": zero}, [])

@@ -99,7 +99,7 @@ class InverseDynamicsLoss(LossModule):
             mask = tensordict.get(self.tensor_keys.mask).reshape(tensordict.shape).bool()
             obs, next_obs, action = obs[mask], next_obs[mask], action[mask]
         else:
-            n = tensordict.numel()
+            n = tensordict.batch_size.numel()
             obs = obs.reshape(n, *obs.shape[tensordict.ndim:])
             next_obs = next_obs.reshape(n, *next_obs.shape[tensordict.ndim:])
             action = action.reshape(n)

@@ -8,7 +8,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
+import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -195,6 +196,8 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     ``learning_curve.png`` and a checkpoint into ``cfg.out_dir``. Returns the summary."""
     cfg.validate()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
+    # one progress-bar refresh per second (per 30 s when the output is a log file)
+    os.environ.setdefault("TQDM_MININTERVAL", "1" if sys.stderr.isatty() else "30")
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     variant = get_variant(cfg.variant)
