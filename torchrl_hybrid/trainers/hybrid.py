@@ -7,6 +7,7 @@ import torch
 from torchrl.objectives import A2CLoss, ValueEstimators
 from tensordict import TensorDictBase
 from torch import nn
+from torchrl.checkpoint import Checkpoint
 from torchrl.trainers import DefaultOptimizationStepper, OptimizationStepper, Trainer
 
 from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
@@ -178,6 +179,7 @@ def make_trainer(
         clip_norm=clip_norm,
         progress_bar=progress_bar,
         save_trainer_file=save_trainer_file,
+        checkpoint=Checkpoint() if save_trainer_file is not None else None,
         save_trainer_interval=save_trainer_interval,
         log_interval=10**12,
         seed=seed,

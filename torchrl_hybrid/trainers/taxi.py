@@ -193,7 +193,7 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
 
 def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     """Trains one agent on Taxi and writes ``metrics.csv``, ``summary.json``,
-    ``learning_curve.png`` and a checkpoint into ``cfg.out_dir``. Returns the summary."""
+    ``learning_curve.png``, ``model.pt`` and a TorchRL trainer checkpoint (``checkpoint/``) into ``cfg.out_dir``. Returns the summary."""
     cfg.validate()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     # one progress-bar refresh per second (per 30 s when the output is a log file)
@@ -238,14 +238,17 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     )
     optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
 
-    collector = Collector(env, actor, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames)
+    collector = Collector(
+        env, actor, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames,
+        auto_register_policy_transforms=False,  # a feed-forward policy needs none
+    )
     logger = None
     if cfg.logger.backend != "none":
         logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"), experiment_name=f"{cfg.variant}_s{cfg.seed}")
     trainer = make_trainer(
         collector=collector, loss=loss, optimizer=optimizer, total_frames=cfg.total_frames,
         clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
-        save_trainer_file=out / "checkpoint.pt" if cfg.logger.checkpoint else None,
+        save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
         save_trainer_interval=max(cfg.total_frames // 4, cfg.frames_per_batch),
         clip_per_group=cfg.optim.clip == "per_group",
     )

@@ -1,0 +1,27 @@
+# Quick start: `make run` trains the Taxi hybrid agent, `make test` runs the tests.
+# Both create the virtualenv .venv on first use (torch 2.13.0 CPU wheel first, then the package).
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+ARGS ?=
+
+.PHONY: run test install clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e ".[test]"
+	touch $@
+
+install: $(VENV)/.installed
+
+# the paper's agent on Taxi with its built-in optimal expert; extra Hydra overrides via ARGS="variant=a2c seed=3"
+run: $(VENV)/.installed
+	$(PY) recipes/taxi.py $(ARGS)
+
+test: $(VENV)/.installed
+	$(PY) -m pytest -q tests
+
+clean:
+	rm -rf $(VENV) outputs .pytest_cache

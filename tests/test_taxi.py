@@ -1,0 +1,118 @@
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from torchrl_hybrid.data import save_demos
+from torchrl_hybrid.trainers import VARIANTS
+from torchrl_hybrid.trainers.taxi import TaxiConfig, config_from_dict, train_taxi
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def tiny(tmp_path, **kw) -> TaxiConfig:
+    d = {"total_frames": 640, "out_dir": str(tmp_path / kw.get("variant", "run")),
+         "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8,
+                    "progress_bar": False, "backend": "csv"}}
+    for k, v in kw.items():
+        if "." in k:
+            g, kk = k.split(".")
+            d.setdefault(g, {})[kk] = v
+        else:
+            d[k] = v
+    return config_from_dict(d)
+
+
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_every_variant_runs_and_writes_its_outputs(tmp_path, variant):
+    cfg = tiny(tmp_path, variant=variant)
+    summary = train_taxi(cfg)
+    out = Path(cfg.out_dir)
+    for f in ("metrics.csv", "summary.json", "learning_curve.png", "model.pt", "checkpoint"):
+        assert (out / f).exists(), f
+    rows = list(csv.DictReader((out / "metrics.csv").open()))
+    assert len(rows) >= 2 and int(rows[-1]["frames"]) == 640
+    assert {"frames", "return_mean", "eval_return"} <= set(rows[0])
+    assert ("idm_accuracy" in rows[0]) == (VARIANTS[variant].inverse_model is not None)
+    s = json.loads((out / "summary.json").read_text())
+    assert s["variant"] == variant and s["frames"] == 640 and s["final_eval_episodes"] == 8
+    assert s == json.loads(json.dumps(summary))
+
+
+def test_options_noise_rank_curriculum_and_gym_backend(tmp_path):
+    s = train_taxi(tiny(tmp_path, rank=1, **{"demo.eta": 0.5, "demo.epsilon": 0.2, "demo.rho": "curriculum",
+                                             "demo.form": "trajectories", "loss.bc_start_frames": 320,
+                                             "env.backend": "gym", "env.num_envs": 4,
+                                             "loss.idm_forward_coeff": 1.0, "optim.clip": "per_group"}))
+    assert s["config"]["rank"] == 1 and s["frames"] == 640
+
+
+def test_hybrid_never_reads_true_expert_actions(tmp_path):
+    """Same seed, demos whose true actions are scrambled: identical policy."""
+    model_ok = tmp_path / "ok"
+    cfg = tiny(tmp_path, **{"demo.save_path": str(model_ok)})
+    train_taxi(cfg)
+    from tensordict import TensorDict
+
+    demos = TensorDict.load_memmap(model_ok).clone()
+    demos["expert_action"] = (demos["expert_action"] + 3) % 6
+    save_demos(demos, tmp_path / "scrambled")
+    s1 = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "a"), **{"demo.path": str(model_ok)}))
+    s2 = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "b"), **{"demo.path": str(tmp_path / "scrambled")}))
+    w1 = torch.load(tmp_path / "a" / "model.pt", weights_only=False)["actor"]
+    w2 = torch.load(tmp_path / "b" / "model.pt", weights_only=False)["actor"]
+    assert all(torch.equal(w1[k], w2[k]) for k in w1)
+    assert s1["idm_accuracy"] != s2["idm_accuracy"]  # only the diagnostic sees the key
+
+
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        ({"variant": "ppo"}, "unknown variant"),
+        ({"rank": 0}, "rank must be"),
+        ({"demo.eta": 1.0}, "demo.eta must be in"),
+        ({"demo.epsilon": -0.1}, "demo.epsilon must be in"),
+        ({"demo.rho": "greedy"}, "demo.rho"),
+        ({"total_frames": 10}, "less than one batch"),
+    ],
+)
+def test_bad_config_is_refused_with_a_clear_message(tmp_path, kw, match):
+    with pytest.raises(ValueError, match=match):
+        train_taxi(tiny(tmp_path, **kw))
+
+
+def test_bad_demo_files(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "nope")}))
+    from tensordict import TensorDict
+
+    save_demos(TensorDict({"observation": torch.rand(4, 3), ("next", "observation"): torch.rand(4, 3)}, [4]), tmp_path / "img")
+    with pytest.raises(ValueError, match="observation shape"):
+        train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "img")}))
+    with pytest.raises(ValueError, match="unknown config key"):
+        config_from_dict({"demo": {"etaa": 0.1}})
+
+
+def test_recipe_command_line(tmp_path):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    cmd = [sys.executable, str(ROOT / "recipes" / "taxi.py"), f"out_dir={tmp_path}/cli", "total_frames=320",
+           "logger.eval_episodes=4", "logger.final_eval_episodes=4", "logger.progress_bar=false"]
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "final greedy return" in res.stdout and "learning_curve.png" in res.stdout
+    bad = subprocess.run(cmd + ["variant=nope"], capture_output=True, text=True, env=env, timeout=300)
+    assert bad.returncode == 2 and "unknown variant 'nope'" in bad.stderr
+
+
+@pytest.mark.slow
+def test_hybrid_dual_learns_taxi_with_the_default_budget(tmp_path):
+    cfg = tiny(tmp_path, total_frames=TaxiConfig().total_frames, seed=0)
+    cfg.logger.final_eval_episodes = 300
+    s = train_taxi(cfg)
+    assert s["final_return"] >= 7.0
+    assert s["idm_accuracy"] >= 0.80
