@@ -94,6 +94,15 @@ def test_bad_demo_files(tmp_path):
     save_demos(TensorDict({"observation": torch.rand(4, 3), ("next", "observation"): torch.rand(4, 3)}, [4]), tmp_path / "img")
     with pytest.raises(ValueError, match="observation shape"):
         train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "img")}))
+    nan = TensorDict({"observation": torch.zeros(4), ("next", "observation"): torch.ones(4)}, [4])
+    nan["observation"][2] = float("nan")
+    save_demos(nan, tmp_path / "nan")
+    with pytest.raises(ValueError, match="NaN"):
+        train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "nan")}))
+    floats = TensorDict({"observation": torch.zeros(4), ("next", "observation"): torch.ones(4)}, [4])
+    save_demos(floats, tmp_path / "floats")
+    with pytest.raises(ValueError, match="dtype"):
+        train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "floats")}))
     with pytest.raises(ValueError, match="unknown config key"):
         config_from_dict({"demo": {"etaa": 0.1}})
 

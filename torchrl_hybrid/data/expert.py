@@ -155,10 +155,12 @@ def validate_demos(
                 f"{source}: {key!r} has observation shape {tuple(x.shape[demos.ndim:])}, but the env "
                 f"produces {tuple(obs_shape)}; the demos were recorded for another env or preprocessing."
             )
-        if obs_dtype is not None and x.dtype.is_floating_point != obs_dtype.is_floating_point:
-            raise ValueError(f"{source}: {key!r} has dtype {x.dtype}, the env produces {obs_dtype}.")
         if x.dtype.is_floating_point and not torch.isfinite(x).all():
-            raise ValueError(f"{source}: {key!r} holds NaN or infinite values; the dataset is corrupt.")
+            raise ValueError(f"{source}: {key!r} holds NaN or infinite values; the dataset is corrupt, regenerate it.")
+        if obs_dtype is not None and x.dtype.is_floating_point != obs_dtype.is_floating_point:
+            raise ValueError(
+                f"{source}: {key!r} has dtype {x.dtype}, the env produces {obs_dtype}; the demos were recorded for another env."
+            )
     if "step" not in demos.keys():
         demos = demos.clone(False)
         demos["step"] = torch.zeros(demos.shape, dtype=torch.long)
