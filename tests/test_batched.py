@@ -28,8 +28,8 @@ def copy_into(agents, actor, critic, idm):
         if isinstance(idm, DualInverseDynamics):
             agents.p["W_ds"][0].copy_(idm.W_ds.weight.T)
             agents.p["act_emb"][0].copy_(idm.action_embedding.weight)
-            agents.p["M"][0].copy_(idm.M)
-            agents.p["N"][0].copy_(idm.N)
+            agents.p["M"][0].copy_(idm.M.permute(1, 0, 2).reshape(idm.d_state, -1))
+            agents.p["N"][0].copy_(idm.N.permute(1, 0, 2).reshape(idm.d, -1))
         else:
             for i in range(2):
                 agents.p[f"L{i}"][0].copy_(idm.mlp[2 * i].weight.T)

@@ -103,28 +103,36 @@ class LazyRMSprop:
         norms = norms2.sqrt()
         scale = torch.ones(K) if self.max_norm is None else (self.max_norm / (norms + 1e-6)).clamp(max=1.0)
         a, lr, eps = self.alpha, self.lr, self.eps
-        for p, g, v in zip(self.dense, grads, self.v_dense):
-            g = g * scale.view(K, *([1] * (g.dim() - 1)))
-            v.mul_(a).addcmul_(g, g, value=1 - a)
-            p.addcdiv_(g, v.sqrt().add_(eps), value=-lr)
+        grads = [g * scale.view(K, *([1] * (g.dim() - 1))) for g in grads]
+        torch._foreach_mul_(self.v_dense, a)
+        torch._foreach_addcmul_(self.v_dense, grads, grads, value=1 - a)
+        denom = torch._foreach_add(torch._foreach_sqrt(self.v_dense), eps)
+        torch._foreach_addcdiv_(self.dense, grads, denom, value=-lr)
+        for p in self.dense:
             p.grad = None
         for (table, rows), sg, v, last in zip(self.sparse, sgrads, self.v_sparse, self.last):
             if sg is None:
                 continue
-            idx, vals = sg
-            vals = vals * scale[idx // rows].unsqueeze(-1)
-            decay = torch.pow(torch.tensor(a), (self.t - last[idx]).float()).unsqueeze(-1)
-            v_rows = v[idx] * decay + (1 - a) * vals * vals
-            v[idx] = v_rows
-            table[idx] -= lr * vals / (v_rows.sqrt() + eps)
-            last[idx] = self.t
+            idx, vals = sg  # coalesced: each row once
+            vals = vals * scale.index_select(0, idx // rows).unsqueeze(-1)
+            decay = torch.pow(a, (self.t - last.index_select(0, idx)).float()).unsqueeze(-1)
+            v_rows = v.index_select(0, idx).mul_(decay).addcmul_(vals, vals, value=1 - a)
+            v.index_copy_(0, idx, v_rows)
+            table.index_add_(0, idx, vals.div_(v_rows.sqrt_().add_(eps)), alpha=-lr)
+            last.index_fill_(0, idx, self.t)
             table.grad = None
         return norms
 
     def dense_state_of_sparse(self, i: int) -> torch.Tensor:
         """The squared-gradient average of sparse table ``i`` as dense RMSprop
         would hold it now (pending decays applied): for tests."""
-        return self.v_sparse[i] * torch.pow(torch.tensor(self.alpha), (self.t - self.last[i]).float()).unsqueeze(-1)
+        return self.v_sparse[i] * torch.pow(self.alpha, (self.t - self.last[i]).float()).unsqueeze(-1)
+
+
+def _side_by_side(factors: torch.Tensor) -> torch.Tensor:
+    """[R, i, j] -> [i, R * j]."""
+    R, i, j = factors.shape
+    return factors.permute(1, 0, 2).reshape(i, R * j)
 
 
 def _uniform(shape, bound, gen):
@@ -169,8 +177,9 @@ class BatchedTabularAgents:
                 R = cfg.rank
                 add(dense, "W_ds", _uniform((ds, d), 1 / math.sqrt(ds), g))
                 add(dense, "act_emb", torch.randn((A, d), generator=g))
-                add(dense, "M", torch.randn((R, ds, d), generator=g) / math.sqrt(ds))
-                add(dense, "N", torch.randn((R, d, d), generator=g) / math.sqrt(d))
+                # M_r, N_r side by side: [i, R * d], block r is M_r (one bmm for all r)
+                add(dense, "M", _side_by_side(torch.randn((R, ds, d), generator=g) / math.sqrt(ds)))
+                add(dense, "N", _side_by_side(torch.randn((R, d, d), generator=g) / math.sqrt(d)))
                 add(dense, "W_i", _uniform((d, A), 1 / math.sqrt(d), g))
                 add(dense, "b_i", _uniform((A,), 1 / math.sqrt(d), g))
             elif kind == "mlp":
@@ -203,10 +212,15 @@ class BatchedTabularAgents:
     def value(self, s):
         return self._head("c", s).squeeze(-1)
 
-    def dual(self, h_s, h_x):
-        hsM = torch.einsum("kni,krij->knrj", h_s, self.p["M"])
-        hxN = torch.einsum("kni,krij->knrj", h_x, self.p["N"])
-        return (hsM * hxN).sum(2)
+    def _project(self, h, name):
+        """h [K, n, i] times every factor r of [K, i, R * d] -> [K, n, R, d]."""
+        return torch.bmm(h, self.p[name]).view(self.K, h.shape[1], self.cfg.rank, -1)
+
+    def dual(self, h_s, h_x, hsM=None):
+        """F(s, x) = sum_r (h_s M_r) * (h_x N_r); pass ``hsM`` to reuse h_s M_r."""
+        if hsM is None:
+            hsM = self._project(h_s, "M")
+        return (hsM * self._project(h_x, "N")).sum(2)
 
     def idm_terms(self, s, s2, a=None) -> dict[str, torch.Tensor]:
         h_s, h_s2 = self.rows("W_s", s), self.rows("W_s", s2)
@@ -217,11 +231,12 @@ class BatchedTabularAgents:
                 h = torch.relu(torch.bmm(h, p[f"L{i}"]) + p[f"c{i}"].unsqueeze(1))
             return {"action_logits": torch.bmm(h, p["W_i"]) + p["b_i"].unsqueeze(1)}
         h_ds = torch.bmm(h_s2 - h_s, p["W_ds"])
-        h_a_hat = self.dual(h_s, h_ds)
+        hsM = self._project(h_s, "M")
+        h_a_hat = self.dual(h_s, h_ds, hsM)
         out = {"action_logits": torch.bmm(h_a_hat, p["W_i"]) + p["b_i"].unsqueeze(1)}
         if a is not None:
             h_a = p["act_emb"][torch.arange(self.K).unsqueeze(-1), a]
-            out.update(h_a=h_a, h_a_hat=h_a_hat, h_ds=h_ds, h_ds_hat=self.dual(h_s, h_a))
+            out.update(h_a=h_a, h_a_hat=h_a_hat, h_ds=h_ds, h_ds_hat=self.dual(h_s, h_a, hsM))
         return out
 
     @torch.no_grad()
