@@ -1,0 +1,100 @@
+"""Taxi throughput, measured side by side in one run.
+
+    python benchmarks/taxi_throughput.py            # ~2 minutes on a 2-core CPU
+    python benchmarks/taxi_throughput.py --quick    # shorter measurements
+
+Prints environment steps/s of TorchRL's GymEnv path and of our fast paths, and
+training frames/s of one seed (TorchRL collector + trainer) and of 16 seeds
+batched (the sweep's path), with their ratios. Every number is measured here, now.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+
+import torch
+
+logging.getLogger("torchrl").setLevel(logging.WARNING)
+
+
+def timed(fn, min_seconds: float) -> tuple[float, int]:
+    """Runs fn() (returning a count) until min_seconds have passed; returns count/s."""
+    fn()  # warm-up
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < min_seconds:
+        n += fn()
+    return n / (time.perf_counter() - t0), n
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="shorter measurements")
+    parser.add_argument("--seeds", type=int, default=16, help="agents in the batched training measurement")
+    args = parser.parse_args()
+    secs = 2.0 if args.quick else 5.0
+    frames = 8_000 if args.quick else 24_000
+    torch.set_num_threads(1)
+
+    from torchrl.envs import GymEnv, SerialEnv
+
+    from torchrl_hybrid.envs import TabularEnv, TabularModel, make_toy_text_env
+    from torchrl_hybrid.trainers.batched import train_taxi_batched
+    from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
+
+    rows = []
+    # --- environment steps -------------------------------------------------------------
+    gym1 = GymEnv("Taxi-v4", categorical_action_encoding=True)
+    rows.append(("env: torchrl GymEnv, 1 env, rollout", timed(lambda: gym1.rollout(200, break_when_any_done=False).numel(), secs)[0]))
+    ser = SerialEnv(16, lambda: GymEnv("Taxi-v4", categorical_action_encoding=True))
+    rows.append(("env: torchrl SerialEnv of 16 GymEnv", timed(lambda: ser.rollout(50, break_when_any_done=False).numel(), secs)[0]))
+    tab = make_toy_text_env("Taxi-v4", 16, backend="tabular")
+    rows.append(("env: TabularEnv (EnvBase), 16 envs", timed(lambda: tab.rollout(50, break_when_any_done=False).numel(), secs)[0]))
+    model = TabularModel.from_gym("Taxi-v4")
+    s = torch.zeros(256, 16, dtype=torch.long)
+
+    def raw_steps():
+        nonlocal s
+        for _ in range(100):
+            a = torch.randint(6, s.shape)
+            s = model.next_state[s, a, 0]
+        return 100 * s.numel()
+
+    rows.append(("env: batched table lookups, 256x16 envs (fast path)", timed(raw_steps, secs)[0]))
+
+    # --- training -----------------------------------------------------------------------
+    def cfg(**kw):
+        d = {"total_frames": frames, "out_dir": "/tmp/taxi_bench", "logger": {"progress_bar": False, "backend": "none",
+             "checkpoint": False}}
+        d.update(kw)
+        return config_from_dict(d)
+
+    t0 = time.perf_counter()
+    train_taxi(cfg(env={"backend": "gym"}))
+    rows.append(("train: 1 seed, TorchRL trainer, GymEnv backend", frames / (time.perf_counter() - t0)))
+    t0 = time.perf_counter()
+    train_taxi(cfg())
+    rows.append(("train: 1 seed, TorchRL trainer, TabularEnv backend", frames / (time.perf_counter() - t0)))
+    t0 = time.perf_counter()
+    train_taxi_batched([cfg(seed=i) for i in range(args.seeds)], write_outputs=False)
+    rows.append((f"train: {args.seeds} seeds batched (fast path)", args.seeds * frames / (time.perf_counter() - t0)))
+
+    width = max(len(r[0]) for r in rows)
+    print(f"\n{'measurement':<{width}}  {'per second':>14}")
+    for name, v in rows:
+        unit = "steps/s" if name.startswith("env") else "frames/s"
+        print(f"{name:<{width}}  {v:>12,.0f} {unit}")
+    r = dict(rows)
+    print("\nratios")
+    print(f"  TabularEnv / GymEnv (1 env)              {r['env: TabularEnv (EnvBase), 16 envs'] / r['env: torchrl GymEnv, 1 env, rollout']:8.1f}x")
+    print(f"  table lookups / SerialEnv(16 GymEnv)     {r['env: batched table lookups, 256x16 envs (fast path)'] / r['env: torchrl SerialEnv of 16 GymEnv']:8.1f}x")
+    one = r["train: 1 seed, TorchRL trainer, GymEnv backend"]
+    print(f"  1 seed: TabularEnv / GymEnv backend      {r['train: 1 seed, TorchRL trainer, TabularEnv backend'] / one:8.1f}x")
+    print(f"  {args.seeds} seeds batched / 1 seed GymEnv       {r[f'train: {args.seeds} seeds batched (fast path)'] / one:8.1f}x")
+    print(f"  {args.seeds} seeds batched / 1 seed TabularEnv   "
+          f"{r[f'train: {args.seeds} seeds batched (fast path)'] / r['train: 1 seed, TorchRL trainer, TabularEnv backend']:8.1f}x")
+    print(f"(torch threads: {torch.get_num_threads()}, frames per training measurement: {frames})")
+
+
+if __name__ == "__main__":
+    main()
