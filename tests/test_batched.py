@@ -120,3 +120,20 @@ def test_batched_refuses_mixed_or_unsupported_configs(tmp_path):
         train_taxi_batched([tiny(tmp_path, demo={"rho": "curriculum"})])
     with pytest.raises(ValueError, match="gym"):
         train_taxi_batched([tiny(tmp_path, env={"backend": "gym"})])
+
+
+@pytest.mark.slow
+def test_fast_path_and_torchrl_path_learn_alike():
+    """Same seeds, both paths: the greedy-return curves agree statistically."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "paths_agree", Path(__file__).resolve().parents[1] / "benchmarks" / "taxi_paths_agree.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    r = mod.compare("hybrid_dual", seeds=4, frames=24_000)
+    t, b = r["auc"]["torchrl"][0], r["auc"]["batched"][0]
+    assert r["auc"]["p_value"] > 0.01, r
+    assert abs(t - b) < 15, r
+    assert -60 < b < 8 and -60 < t < 8  # both learned something (random play is about -200)

@@ -59,7 +59,7 @@ def test_reproduction_notebook_runs_on_a_sweep(tiny_sweep, monkeypatch):
 
 def test_sweep_command_line_subset(tmp_path):
     cmd = [sys.executable, str(ROOT / "recipes" / "taxi_sweep.py"), "groups=[ranks]", "seeds=1", "total_frames=320",
-           f"out_dir={tmp_path}", "workers=1", "base={logger: {eval_episodes: 4, final_eval_episodes: 4}}"]
+           f"out_dir={tmp_path}", "workers=1", "+base.logger.eval_episodes=4", "+base.logger.final_eval_episodes=4"]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert res.returncode == 0, res.stderr[-2000:]
     assert set(json.loads((tmp_path / "runs.json").read_text())["runs"]) == {

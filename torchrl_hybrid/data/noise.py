@@ -27,6 +27,8 @@ def apply_demo_noise(
     *,
     eta: float = 0.0,
     epsilon: float = 0.0,
+    epsilon_mode: str = "non_optimal",
+    random_actions: tuple[int, ...] = (0, 1, 2, 3),
     generator: torch.Generator | None = None,
 ) -> TensorDictBase:
     """Returns a noisy copy of tabular demos.
@@ -43,6 +45,12 @@ def apply_demo_noise(
         optimal: ``[S, A]`` bool, the optimal actions (see ``optimal_policy``).
         eta: missing-state ratio in [0, 1).
         epsilon: non-optimal-action ratio in [0, 1).
+        epsilon_mode: ``"non_optimal"`` (above: an exact fraction of pairs made by a
+            non-optimal action) or ``"authors"``: as the authors' Taxi code, each
+            pair is redrawn with probability ``epsilon`` with an action drawn
+            uniformly from ``random_actions`` (Taxi's four moves), which may
+            happen to be optimal.
+        random_actions: the actions ``"authors"`` mode draws from.
         generator: torch random generator (seed it for reproducible noise).
     """
     _check_ratio("eta", eta)
@@ -53,7 +61,18 @@ def apply_demo_noise(
         n_drop = int(eta * len(states))
         drop = states[torch.randperm(len(states), generator=generator)[:n_drop]]
         demos = demos[~torch.isin(demos["observation"], drop)]
-    if epsilon > 0:
+    if epsilon_mode not in ("non_optimal", "authors"):
+        raise ValueError(f"epsilon_mode must be 'non_optimal' or 'authors', got {epsilon_mode!r}")
+    if epsilon > 0 and epsilon_mode == "authors":
+        s = demos["observation"]
+        rows = torch.nonzero(torch.rand(s.shape, generator=generator) < epsilon).squeeze(-1)
+        choices = torch.tensor(random_actions)
+        a = choices[torch.randint(len(choices), rows.shape, generator=generator)]
+        demos[EXPERT_ACTION_KEY][rows] = a
+        demos[("next", "observation")][rows] = _successor(model, s[rows], a, generator)
+        demos.set("corrupted", torch.zeros(demos.shape, dtype=torch.bool))
+        demos["corrupted"][rows] = True
+    elif epsilon > 0:
         n_bad = int(epsilon * demos.batch_size.numel())
         s = demos["observation"]
         candidates = torch.nonzero((~optimal[s]).any(-1)).squeeze(-1)

@@ -33,6 +33,7 @@ GROUPS: dict[str, list[tuple[str, dict]]] = {
         for v in ("hybrid_dual", "bc_dual")
     ],
 }
+GROUPS["noise_epsilon"] = [c for c in GROUPS["noise"] if "epsilon" in c[0]]
 # the same run under two names: hybrid_dual is rank 2
 ALIASES = {"hybrid_dual_rank2": "hybrid_dual"}
 
@@ -221,7 +222,15 @@ def parameter_table(rank_list=(1, 2, 4), n_states: int = 500, n_actions: int = 6
     return rows
 
 
-def _plot(S, names, path, title, key="eval", ylabel="greedy return", optimal=True, ylim=(-60, 10)):
+def _style_return_axis(ax):
+    """Symmetric-log y axis: the region near the optimum stays readable and runs
+    that collapse (returns of -200 and below) stay on the plot."""
+    ax.set_yscale("symlog", linthresh=10)
+    ax.set_ylim(-500, 12)
+    ax.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:g}k")
+
+
+def _plot(S, names, path, title, key="eval", ylabel="greedy return", optimal=True, ylim=None):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -238,7 +247,11 @@ def _plot(S, names, path, title, key="eval", ylabel="greedy return", optimal=Tru
         ax.fill_between(x, m - s, m + s, alpha=0.2)
     if optimal:
         ax.axhline(OPTIMAL, color="k", ls="--", lw=1, label=f"optimal {OPTIMAL}")
-    ax.set_ylim(*ylim)
+    if ylim is None:
+        _style_return_axis(ax)
+    else:
+        ax.set_ylim(*ylim)
+        ax.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:g}k")
     ax.set_xlabel("frames")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -268,7 +281,7 @@ def _plot_noise(S, path, seeds):
                 ax.fill_between(S[n]["frames"], m - s, m + s, alpha=0.2)
             ax.axhline(OPTIMAL, color="k", ls="--", lw=1)
             ax.set_title(f"{name} = {x}")
-            ax.set_ylim(-60, 10)
+            _style_return_axis(ax)
             ax.grid(alpha=0.3)
             if row == 1:
                 ax.set_xlabel("frames")
@@ -329,7 +342,7 @@ def analyse(out: str | Path, results: dict[str, list[dict]], meta: dict) -> dict
         _plot(S_r, ["hybrid_dual_rank1", "hybrid_dual_rank2", "hybrid_dual_rank4", "a2c"], out / "fig_ranks.png",
               f"Taxi, rank of the dual model (mean ± std over {seeds} seeds)")
         figs.append("fig_ranks.png")
-    if "noise" in meta["groups"]:
+    if any(g.startswith("noise") for g in meta["groups"]):
         _plot_noise(S, out / "fig_noise.png", seeds)
         figs.append("fig_noise.png")
     claims = _claims(S)

@@ -66,6 +66,7 @@ class DemoConfig:
     save_path: str | None = None
     eta: float = 0.0
     epsilon: float = 0.0
+    epsilon_mode: str = "non_optimal"
     rho: str = "visited"
     batch_size: int = 32
     curriculum_k0: int = 10
@@ -185,7 +186,10 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
     else:
         demos = tabular_trajectories(model, policy, cfg.demo.num_trajectories, cfg.env.max_episode_steps, generator)
     if cfg.demo.eta or cfg.demo.epsilon:
-        demos = apply_demo_noise(demos, model, optimal, eta=cfg.demo.eta, epsilon=cfg.demo.epsilon, generator=generator)
+        demos = apply_demo_noise(
+            demos, model, optimal, eta=cfg.demo.eta, epsilon=cfg.demo.epsilon,
+            epsilon_mode=cfg.demo.epsilon_mode, generator=generator,
+        )
     if cfg.demo.save_path:
         save_demos(demos, cfg.demo.save_path, {"env_id": cfg.env.env_id, "eta": cfg.demo.eta, "epsilon": cfg.demo.epsilon})
     return demos, policy
