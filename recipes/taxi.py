@@ -23,7 +23,12 @@ def main(cfg: DictConfig) -> None:
     raw.pop("hydra", None)
     try:
         config = config_from_dict(raw)
-        summary = train_taxi(config)
+        if config.engine == "batched":
+            from torchrl_hybrid.trainers.batched import train_taxi_batched
+
+            summary = train_taxi_batched([config])[0]
+        else:
+            summary = train_taxi(config)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

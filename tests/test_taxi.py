@@ -114,6 +114,10 @@ def test_recipe_command_line(tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     assert "final greedy return" in res.stdout and "learning_curve.png" in res.stdout
+    fast = subprocess.run(cmd + ["engine=batched", f"out_dir={tmp_path}/fast"], capture_output=True, text=True,
+                          env=env, timeout=300)
+    assert fast.returncode == 0 and "final greedy return" in fast.stdout, fast.stderr[-2000:]
+    assert (tmp_path / "fast" / "metrics.csv").exists()
     bad = subprocess.run(cmd + ["variant=nope"], capture_output=True, text=True, env=env, timeout=300)
     assert bad.returncode == 2 and "unknown variant 'nope'" in bad.stderr
 

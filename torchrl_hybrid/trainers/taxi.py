@@ -48,6 +48,7 @@ __all__ = ["TaxiConfig", "config_from_dict", "make_taxi_demos", "train_taxi"]
 RHOS = ("visited", "uniform", "curriculum")
 DEMO_FORMS = ("per_state", "trajectories")
 LOGGERS = ("csv", "tensorboard", "wandb", "none")
+ENGINES = ("torchrl", "batched")
 
 
 @dataclass
@@ -119,6 +120,7 @@ class TaxiConfig:
     identity_embedding: bool = True
     out_dir: str = "outputs/taxi"
     threads: int = 1
+    engine: str = "torchrl"
     env: EnvConfig = field(default_factory=EnvConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -133,6 +135,7 @@ class TaxiConfig:
             if not ok:
                 raise ValueError(msg)
 
+        need(self.engine in ENGINES, f"engine must be one of {ENGINES}, got {self.engine!r}")
         need(self.rank >= 1, f"rank must be an integer >= 1, got {self.rank}")
         need(self.mlp_layers >= 1, f"mlp_layers must be >= 1, got {self.mlp_layers}")
         for name in ("eta", "epsilon"):
