@@ -1,0 +1,188 @@
+"""Atari through ale-py's threaded vector env, as a TorchRL ``EnvBase``.
+
+``ale_py.vector_env.AtariVectorEnv`` does the standard preprocessing in C++
+(frame-skip 4 with max-pooling of the last two frames, 84x84 greyscale, 4
+stacked frames, up to 30 no-op starts) for a whole batch of games on worker
+threads. TorchRL's ``GymWrapper`` refuses its default autoreset mode, so this
+wrapper drives it in ``SameStep`` mode and restores TorchRL's semantics:
+``("next", "observation")`` of a final step is the true last frame stack (from
+``info["final_obs"]``), and the next root observation is the new episode's
+first one. Lives are exposed under ``"lives"`` so that demonstrations can be cut
+at the first life lost.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+__all__ = ["ATARI_GAMES", "AtariEnv"]
+
+#: the paper's eight games
+ATARI_GAMES = ("Alien", "BeamRider", "Breakout", "MsPacman", "Pong", "Qbert", "Seaquest", "SpaceInvaders")
+
+
+def _rom_name(game: str) -> str:
+    # "MsPacman" -> "ms_pacman", "SpaceInvaders" -> "space_invaders", "pong" -> "pong"
+    out = []
+    for i, ch in enumerate(game):
+        if ch.isupper() and i and not game[i - 1].isupper():
+            out.append("_")
+        out.append(ch.lower())
+    return "".join(out)
+
+
+class AtariEnv(EnvBase):
+    """A batch of ``num_envs`` Atari games with standard preprocessing.
+
+    Args:
+        game: an ALE game, e.g. ``"Pong"`` or ``"MsPacman"``.
+        num_envs: parallel games (the paper: 16).
+
+    Keyword Args:
+        seed: seed of the first reset.
+        num_threads: ALE worker threads (0 = one per env, capped by ale-py).
+        noop_max: up to this many no-ops at each episode start (standard: 30).
+        frameskip: frames per step (standard: 4).
+        stack: frames stacked per observation (standard: 4).
+        size: side of the square greyscale frames (standard: 84).
+        reward_clipping: ``reward`` is the sign of the game reward (for training);
+            the raw reward is always in ``"score"``.
+        max_episode_frames: truncate episodes after this many frames (standard: 108,000).
+        repeat_action_probability: sticky actions (0 = off, the paper's setting).
+
+    Examples:
+        >>> env = AtariEnv("Pong", num_envs=2)
+        >>> env.rollout(3)["observation"].shape
+        torch.Size([2, 3, 4, 84, 84])
+    """
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        game: str,
+        num_envs: int = 16,
+        *,
+        seed: int = 0,
+        num_threads: int = 0,
+        noop_max: int = 30,
+        frameskip: int = 4,
+        stack: int = 4,
+        size: int = 84,
+        reward_clipping: bool = True,
+        max_episode_frames: int = 108_000,
+        repeat_action_probability: float = 0.0,
+    ):
+        try:
+            from ale_py.vector_env import AtariVectorEnv
+        except ImportError as err:  # pragma: no cover - depends on the install
+            raise ImportError("Atari needs ale-py: pip install 'torchrl-hybrid[atari]'") from err
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        super().__init__(batch_size=(num_envs,), device="cpu")
+        self.game = game
+        self.preprocessing = {"noop_max": noop_max, "frameskip": frameskip, "stack": stack, "size": size,
+                              "grayscale": True, "maxpool": True, "reward_clipping": reward_clipping,
+                              "max_episode_frames": max_episode_frames,
+                              "repeat_action_probability": repeat_action_probability}
+        try:
+            self._env = AtariVectorEnv(
+                _rom_name(game), num_envs, num_threads=num_threads, autoreset_mode="SameStep",
+                noop_max=noop_max, frameskip=frameskip, stack_num=stack, img_height=size, img_width=size,
+                grayscale=True, maxpool=True, reward_clipping=False, episodic_life=False,
+                max_num_frames_per_episode=max_episode_frames,
+                repeat_action_probability=repeat_action_probability,
+            )
+        except Exception as err:
+            raise ValueError(f"ale-py cannot load the game {game!r} ({err}); known: {', '.join(ATARI_GAMES)}") from err
+        self.reward_clipping = reward_clipping
+        self._seed = seed
+        self._started = False
+        self._pending = None  # reset observations of envs that just finished
+        self._lives = None
+        n = num_envs
+        obs_shape = (n, stack, size, size)
+        self.n_actions = int(self._env.single_action_space.n)
+        self.observation_spec = Composite(
+            observation=Bounded(0, 255, shape=obs_shape, dtype=torch.uint8),
+            lives=Unbounded(shape=(n, 1), dtype=torch.int64),
+            shape=(n,),
+        )
+        self.action_spec = Categorical(self.n_actions, shape=(n,), dtype=torch.int64)
+        self.reward_spec = Composite(
+            reward=Unbounded(shape=(n, 1), dtype=torch.float32),
+            score=Unbounded(shape=(n, 1), dtype=torch.float32),
+            shape=(n,),
+        )
+        self.done_spec = Composite(
+            done=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            shape=(n,),
+        )
+
+    def _done_td(self, n):
+        z = torch.zeros(n, 1, dtype=torch.bool)
+        return {"done": z, "terminated": z.clone(), "truncated": z.clone()}
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        n = self.batch_size[0]
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if not self._started or mask is None or mask.all() and self._pending is None:
+            obs, info = self._env.reset(seed=self._seed)
+            self._started, self._pending = True, None
+            self._obs = torch.from_numpy(np.ascontiguousarray(obs))
+            self._lives = torch.as_tensor(info["lives"], dtype=torch.int64).view(n, 1)
+        else:
+            # the vector env already started new episodes for the envs that ended
+            mask = mask.reshape(n)
+            if self._pending is None or (mask & ~self._pending_mask).any():
+                raise RuntimeError(
+                    "AtariEnv can only reset envs whose episode just ended (ale-py resets them itself); "
+                    "reset the whole batch instead"
+                )
+            self._obs = torch.where(mask.view(n, 1, 1, 1), self._pending, self._obs)
+            self._pending = None
+        return TensorDict({"observation": self._obs.clone(), "lives": self._lives.clone(), **self._done_td(n)}, [n])
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        n = self.batch_size[0]
+        action = tensordict.get("action").reshape(n).numpy()
+        obs, reward, term, trunc, info = self._env.step(action)
+        obs_t = torch.from_numpy(np.ascontiguousarray(obs))
+        term_t = torch.as_tensor(term, dtype=torch.bool)
+        trunc_t = torch.as_tensor(trunc, dtype=torch.bool) & ~term_t
+        done = term_t | trunc_t
+        next_obs = obs_t
+        if done.any():
+            final = torch.from_numpy(np.ascontiguousarray(info["final_obs"]))
+            next_obs = torch.where(done.view(n, 1, 1, 1), final, obs_t)
+            self._pending, self._pending_mask = obs_t, done
+        self._obs = next_obs
+        self._lives = torch.as_tensor(info["lives"], dtype=torch.int64).view(n, 1)
+        score = torch.as_tensor(reward, dtype=torch.float32).view(n, 1)
+        return TensorDict(
+            {
+                "observation": next_obs,
+                "lives": self._lives.clone(),
+                "reward": score.sign() if self.reward_clipping else score,
+                "score": score,
+                "done": done.view(n, 1),
+                "terminated": term_t.view(n, 1),
+                "truncated": trunc_t.view(n, 1),
+            },
+            [n],
+        )
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._seed = 0 if seed is None else int(seed)
+        self._started = False
+
+    def close(self, **kwargs):
+        if getattr(self, "_env", None) is not None:
+            self._env.close()
+            self._env = None
+        super().close(**kwargs)
