@@ -75,3 +75,97 @@ def test_shared_encoder_inverse_model_trains_on_collected_atari_transitions():
     sum(v for k, v in out.items() if k.startswith("loss_")).backward()
     assert enc.convs[0].weight.grad is not None  # the shared encoder learns from the inverse model too
     env.close()
+
+
+# ---------------------------------------------------------------- the pipeline
+import json  # noqa: E402
+import os  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from torchrl_hybrid.data import CurriculumSampler, load_demos, make_expert_buffer  # noqa: E402
+from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = {"env": {"num_envs": 2, "num_threads": 1}, "loss": {"n_steps": 4, "bc_start_frames": 16},
+        "logger": {"progress_bar": False, "log_every_frames": 32, "checkpoint": False}, "total_frames": 64}
+
+
+def tiny(tmp, **kw):
+    d = json.loads(json.dumps(TINY))
+    for k, v in kw.items():
+        if isinstance(v, dict):
+            d.setdefault(k, {}).update(v)
+        else:
+            d[k] = v
+    d.setdefault("out_dir", str(tmp))
+    return atari_config(d)
+
+
+@pytest.mark.parametrize("game", ATARI_GAMES)
+def test_every_stage_runs_for_every_game(tmp_path, game):
+    expert = train_atari(tiny(tmp_path / "expert", variant="a2c", env={"game": game}))
+    assert expert["frames"] == 64 and (tmp_path / "expert" / "model.pt").exists()
+    meta = record_demos(tmp_path / "expert" / "model.pt", tmp_path / "demos", num_trajectories=2, num_envs=2,
+                        max_steps=12, progress=False)
+    assert meta["game"] == game and meta["num_trajectories"] == 2 and max(meta["lengths"]) <= 12
+    s = train_atari(tiny(tmp_path / "hybrid", variant="hybrid_dual", env={"game": game},
+                         demo={"path": str(tmp_path / "demos"), "curriculum_frames_per_step": 16}))
+    assert s["frames"] == 64
+    assert (tmp_path / "hybrid" / "metrics.csv").read_text().startswith("frames,return_mean")
+
+
+@pytest.fixture(scope="module")
+def pong_demos(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("pong")
+    train_atari(tiny(tmp / "expert", variant="a2c"))
+    record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=3, num_envs=2, max_steps=20,
+                 progress=False)
+    return tmp
+
+
+def test_demo_dataset_round_trip_and_curriculum(pong_demos):
+    demos, meta = load_demos(pong_demos / "demos", obs_shape=(4, 84, 84), obs_dtype=torch.uint8)
+    assert meta["num_trajectories"] == 3 and demos.batch_size.numel() == sum(meta["lengths"])
+    assert demos["observation"].dtype == torch.uint8 and "expert_action" in demos.keys()
+    assert int(demos["step"].max()) == max(meta["lengths"]) - 1
+    # consecutive pairs of one trajectory chain up; none spans two trajectories
+    same = demos["trajectory"][1:] == demos["trajectory"][:-1]
+    assert torch.equal(demos["next", "observation"][:-1][same], demos["observation"][1:][same])
+    sampler = CurriculumSampler(k0=3, frames_per_step=100)
+    buf = make_expert_buffer(demos, sampler=sampler)
+    assert int(buf.sample(256)["step"].max()) <= 2
+    sampler.update(frames=500)
+    assert int(buf.sample(512)["step"].max()) > 2 and "expert_action" not in buf.sample(4).keys()
+
+
+def test_demo_mismatches_are_refused(pong_demos, tmp_path):
+    with pytest.raises(ValueError, match="demos are for 'Pong'"):
+        train_atari(tiny(tmp_path, variant="hybrid_dual", env={"game": "Breakout"},
+                         demo={"path": str(pong_demos / "demos")}))
+    with pytest.raises(ValueError, match="preprocessing"):
+        train_atari(tiny(tmp_path, variant="hybrid_dual", env={"noop_max": 5}, demo={"path": str(pong_demos / "demos")}))
+    with pytest.raises(ValueError, match="needs expert demos"):
+        train_atari(tiny(tmp_path, variant="bc_dual"))
+    with pytest.raises(ValueError, match="unknown Atari variant"):
+        train_atari(tiny(tmp_path, variant="il"))
+    with pytest.raises(FileNotFoundError, match="atari_expert.py"):
+        record_demos(tmp_path / "nope.pt", tmp_path / "d", progress=False)
+
+
+def test_atari_recipes_command_line(tmp_path):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    common = ["env.num_envs=2", "env.num_threads=1", "loss.n_steps=4", "total_frames=32", "logger.progress_bar=false",
+              "logger.checkpoint=false", "logger.log_every_frames=16"]
+    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_expert.py"), f"out_dir={tmp_path}/e", *common],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_demos.py"), f"expert={tmp_path}/e/model.pt",
+                        f"out={tmp_path}/d", "num_trajectories=2", "num_envs=2", "max_steps=8", "progress=false"],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0 and "2 Pong trajectories" in r.stdout, r.stderr[-2000:]
+    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari.py"), f"out_dir={tmp_path}/h",
+                        f"demo.path={tmp_path}/d", "loss.bc_start_frames=8", *common],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0 and "hybrid_dual" in r.stdout, r.stderr[-2000:]

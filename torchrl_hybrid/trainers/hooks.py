@@ -135,6 +135,8 @@ class MetricsHook(TrainerHookBase):
         every_frames: frames between rows.
         evaluator: callable returning a dict of extra scalar columns.
         pbar_keys: columns shown in the progress bar.
+        return_key: the batch entry holding each episode's running return
+            (TorchRL's ``RewardSum`` writes ``("next", "episode_reward")``).
     """
 
     def __init__(
@@ -143,11 +145,13 @@ class MetricsHook(TrainerHookBase):
         every_frames: int,
         evaluator: Callable[[], dict[str, float]] | None = None,
         pbar_keys: tuple[str, ...] = ("return_mean",),
+        return_key=("next", "episode_reward"),
     ):
         self.csv_path = Path(csv_path)
         self.every_frames = int(every_frames)
         self.evaluator = evaluator
         self.pbar_keys = pbar_keys
+        self.return_key = return_key
         self.rows: list[dict[str, float]] = []
         self._returns: list[torch.Tensor] = []
         self._losses: dict[str, float] = {}
@@ -159,7 +163,7 @@ class MetricsHook(TrainerHookBase):
     def collect(self, batch: TensorDictBase) -> None:
         done = batch.get(("next", "done")).squeeze(-1)
         if done.any():
-            self._returns.append(batch.get(("next", "episode_reward")).squeeze(-1)[done])
+            self._returns.append(batch.get(self.return_key).squeeze(-1)[done])
 
     def losses(self, optim_steps: int, average_losses: TensorDictBase | None) -> None:
         if average_losses is not None:

@@ -41,6 +41,7 @@ from torchrl_hybrid.modules import (
 from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook, MetricsHook
 from torchrl_hybrid.trainers.hybrid import get_variant, make_hybrid_loss, make_trainer, param_groups
+from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["TaxiConfig", "config_from_dict", "make_taxi_demos", "train_taxi"]
@@ -162,18 +163,7 @@ class TaxiConfig:
 
 def config_from_dict(d: dict[str, Any]) -> TaxiConfig:
     """Builds a :class:`TaxiConfig` from nested dicts (e.g. Hydra's), rejecting unknown keys."""
-
-    def build(cls, values: dict[str, Any], prefix: str):
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        kwargs = {}
-        for k, v in values.items():
-            if k not in fields:
-                raise ValueError(f"unknown config key {prefix + k!r}; known keys: {', '.join(fields)}")
-            ftype = fields[k].default_factory if fields[k].default_factory is not dataclasses.MISSING else None
-            kwargs[k] = build(ftype, v, f"{prefix}{k}.") if dataclasses.is_dataclass(ftype) and isinstance(v, dict) else v
-        return cls(**kwargs)
-
-    return build(TaxiConfig, dict(d), "")
+    return dataclass_from_dict(TaxiConfig, d)
 
 
 def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Generator):

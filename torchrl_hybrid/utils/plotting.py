@@ -28,7 +28,8 @@ def plot_learning_curve(rows: Sequence[dict], path: str | Path, title: str = "",
         ax.axhline(optimal, color="k", ls="--", lw=1, label=f"optimal ({optimal:.2f})")
     ax.set_xlabel("frames")
     ax.set_ylabel("undiscounted return")
-    ax.legend(loc="lower right")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="lower right")
     ax.grid(alpha=0.3)
     ax.set_title(title)
     if has_acc:

@@ -1,0 +1,39 @@
+"""Hybrid (or baseline) training on an Atari game from recorded expert states.
+
+    python recipes/atari_expert.py env.game=Pong out_dir=experts/pong           # 1. expert (plain A2C)
+    python recipes/atari_demos.py expert=experts/pong/model.pt out=demos/pong   # 2. state-only demos
+    python recipes/atari.py env.game=Pong demo.path=demos/pong                  # 3. the hybrid agent
+
+Options: recipes/config/atari.yaml.
+"""
+from __future__ import annotations
+
+import sys
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from torchrl_hybrid.trainers.atari import atari_config, train_atari
+
+
+def run(cfg: DictConfig, **overrides) -> None:
+    raw = OmegaConf.to_container(cfg, resolve=True)
+    raw.pop("hydra", None)
+    raw.update(overrides)
+    try:
+        summary = train_atari(atari_config(raw))
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    print(f"\n{summary['game']} {summary['variant']} seed {summary['seed']}: last mean episode score "
+          f"{summary['final_return']}, {summary['frames']} frames at {summary['frames_per_s']:.0f} frames/s"
+          f"\nplot: {raw['out_dir']}/learning_curve.png   curve: {raw['out_dir']}/metrics.csv")
+
+
+@hydra.main(config_path="config", config_name="atari", version_base=None)
+def main(cfg: DictConfig) -> None:
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()

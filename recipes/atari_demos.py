@@ -1,0 +1,30 @@
+"""Play an Atari expert and record state-only trajectories as a dataset.
+
+    python recipes/atari_demos.py expert=experts/pong/model.pt out=demos/pong num_trajectories=100
+"""
+from __future__ import annotations
+
+import sys
+
+import hydra
+from omegaconf import DictConfig
+
+from torchrl_hybrid.trainers.atari import record_demos
+
+
+@hydra.main(config_path="config", config_name="atari_demos", version_base=None)
+def main(cfg: DictConfig) -> None:
+    try:
+        meta = record_demos(cfg.expert, cfg.out, num_trajectories=cfg.num_trajectories, num_envs=cfg.num_envs,
+                            seed=cfg.seed, deterministic=cfg.deterministic, max_steps=cfg.max_steps,
+                            progress=cfg.progress)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    n = meta["num_trajectories"]
+    print(f"\n{n} {meta['game']} trajectories, {sum(meta['lengths'])} pairs, mean score "
+          f"{sum(meta['returns']) / n:.1f}, saved to {cfg.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,318 @@
+"""The Atari pipeline: expert training, demonstration recording, hybrid training.
+
+The recipes ``recipes/atari_expert.py``, ``recipes/atari_demos.py`` and
+``recipes/atari.py`` are Hydra front-ends over :func:`train_atari`,
+:func:`record_demos`; tests call these directly. Same losses, hooks and trainer
+as Taxi; only the networks (a shared CNN), the env and the demo source differ.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm import tqdm
+from torchrl.collectors import Collector
+from torchrl.envs import RewardSum, TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.record.loggers import get_logger
+
+from torchrl_hybrid.data import (
+    EXPERT_ACTION_KEY,
+    CurriculumSampler,
+    load_demos,
+    make_expert_buffer,
+    pairs_from_trajectories,
+    save_demos,
+)
+from torchrl_hybrid.envs.atari import AtariEnv
+from torchrl_hybrid.modules import AtariEncoder, DualInverseDynamics, MLPInverseDynamics, make_atari_actor_critic
+from torchrl_hybrid.trainers.evaluation import inverse_model_accuracy
+from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook, MetricsHook
+from torchrl_hybrid.trainers.hybrid import get_variant, make_hybrid_loss, make_trainer, param_groups
+from torchrl_hybrid.utils.config import dataclass_from_dict
+from torchrl_hybrid.utils.plotting import plot_learning_curve
+
+__all__ = ["AtariConfig", "atari_config", "train_atari", "record_demos", "load_expert"]
+
+ATARI_VARIANTS = ("hybrid_dual", "hybrid_mlp", "bc_dual", "a2c")
+
+
+@dataclass
+class AtariEnvConfig:
+    game: str = "Pong"
+    num_envs: int = 16
+    num_threads: int = 2
+    noop_max: int = 30
+    max_episode_frames: int = 108_000
+
+
+@dataclass
+class AtariDemoConfig:
+    path: str | None = None
+    batch_size: int = 32
+    curriculum: bool = True
+    curriculum_k0: int = 10
+    curriculum_frames_per_step: int = 8000
+
+
+@dataclass
+class AtariLossConfig:
+    n_steps: int = 5
+    gamma: float = 0.99
+    critic_coeff: float = 0.5
+    entropy_coeff: float = 0.01
+    idm_action_coeff: float = 1.0
+    idm_embedding_coeff: float = 0.1
+    bc_coeff: float = 1.0
+    bc_start_frames: int = 100_000
+
+
+@dataclass
+class AtariOptimConfig:
+    lr: float = 7e-4
+    eps: float = 1e-5
+    alpha: float = 0.99
+    max_grad_norm: float = 0.5
+
+
+@dataclass
+class AtariLoggerConfig:
+    backend: str = "csv"
+    log_every_frames: int = 20_000
+    accuracy_pairs: int = 512
+    progress_bar: bool = True
+    checkpoint: bool = True
+
+
+@dataclass
+class AtariConfig:
+    variant: str = "hybrid_dual"
+    seed: int = 0
+    total_frames: int = 2_000_000
+    rank: int = 8
+    d_state: int = 128
+    d: int = 128
+    out_dir: str = "outputs/atari"
+    threads: int = 2
+    env: AtariEnvConfig = field(default_factory=AtariEnvConfig)
+    demo: AtariDemoConfig = field(default_factory=AtariDemoConfig)
+    loss: AtariLossConfig = field(default_factory=AtariLossConfig)
+    optim: AtariOptimConfig = field(default_factory=AtariOptimConfig)
+    logger: AtariLoggerConfig = field(default_factory=AtariLoggerConfig)
+
+    @property
+    def frames_per_batch(self) -> int:
+        return self.env.num_envs * self.loss.n_steps
+
+    def validate(self) -> "AtariConfig":
+        if self.variant not in ATARI_VARIANTS:
+            raise ValueError(f"unknown Atari variant {self.variant!r}; choose one of {ATARI_VARIANTS}")
+        if self.rank < 1:
+            raise ValueError(f"rank must be >= 1, got {self.rank}")
+        if get_variant(self.variant).bc is not None and not self.demo.path:
+            raise ValueError(
+                f"variant {self.variant!r} needs expert demos: record them with recipes/atari_demos.py "
+                "and pass demo.path=<folder>"
+            )
+        if self.total_frames < self.frames_per_batch:
+            raise ValueError(f"total_frames={self.total_frames} is less than one batch ({self.frames_per_batch})")
+        return self
+
+
+def atari_config(d: dict[str, Any]) -> AtariConfig:
+    """An :class:`AtariConfig` from nested dicts (e.g. Hydra's)."""
+    return dataclass_from_dict(AtariConfig, d)
+
+
+def _make_env(cfg: AtariConfig, num_envs: int | None = None, seed: int | None = None) -> TransformedEnv:
+    env = AtariEnv(cfg.env.game, num_envs or cfg.env.num_envs, seed=cfg.seed if seed is None else seed,
+                   num_threads=cfg.env.num_threads, noop_max=cfg.env.noop_max,
+                   max_episode_frames=cfg.env.max_episode_frames)
+    # episode score (raw, unclipped game reward) for the learning curve
+    return TransformedEnv(env, RewardSum(in_keys=["score"], out_keys=["episode_score"]))
+
+
+def _check_demo_metadata(meta: dict, cfg: AtariConfig, env: AtariEnv, path: str) -> None:
+    if meta.get("game") != cfg.env.game:
+        raise ValueError(f"{path}: demos are for {meta.get('game')!r}, this run plays {cfg.env.game!r}")
+    if meta.get("preprocessing") != env.preprocessing:
+        raise ValueError(
+            f"{path}: demos were recorded with preprocessing {meta.get('preprocessing')}, this run uses "
+            f"{env.preprocessing}; record them again with the same settings"
+        )
+
+
+def train_atari(cfg: AtariConfig) -> dict[str, Any]:
+    """Trains one agent (``hybrid_dual``, ``hybrid_mlp``, ``bc_dual`` or ``a2c``) and
+    writes ``metrics.csv``, ``summary.json``, ``learning_curve.png``, ``model.pt``."""
+    cfg.validate()
+    logging.getLogger("torchrl").setLevel(logging.WARNING)
+    os.environ.setdefault("TQDM_MININTERVAL", "1" if sys.stderr.isatty() else "30")
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    variant = get_variant(cfg.variant)
+    out = Path(cfg.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+
+    env = _make_env(cfg)
+    base = env.base_env
+    demos = None
+    if variant.bc is not None:
+        demos, meta = load_demos(cfg.demo.path, obs_shape=tuple(base.observation_spec["observation"].shape[1:]),
+                                 obs_dtype=torch.uint8)
+        _check_demo_metadata(meta, cfg, base, cfg.demo.path)
+
+    actor, critic, encoder = make_atari_actor_critic(base.n_actions)
+    inverse_model = None
+    if variant.inverse_model == "dual":
+        inverse_model = DualInverseDynamics(encoder, base.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank)
+    elif variant.inverse_model == "mlp":
+        inverse_model = MLPInverseDynamics(encoder, base.n_actions, d_state=cfg.d_state, hidden=cfg.d)
+    lc = cfg.loss
+    loss = make_hybrid_loss(
+        variant, actor, critic, inverse_model, gamma=lc.gamma, critic_coeff=lc.critic_coeff,
+        entropy_coeff=lc.entropy_coeff, idm_action_coeff=lc.idm_action_coeff,
+        idm_embedding_coeff=lc.idm_embedding_coeff, bc_coeff=lc.bc_coeff,
+    )
+    optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
+    collector = Collector(env, actor, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames,
+                          auto_register_policy_transforms=False)
+    logger = None
+    if cfg.logger.backend != "none":
+        logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"),
+                            experiment_name=f"{cfg.env.game}_{cfg.variant}_s{cfg.seed}")
+    trainer = make_trainer(
+        collector=collector, loss=loss, optimizer=optimizer, total_frames=cfg.total_frames,
+        clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
+        save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
+        save_trainer_interval=max(cfg.total_frames // 10, cfg.frames_per_batch),
+    )
+    if demos is not None:
+        sampler = (CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
+                   if cfg.demo.curriculum else None)
+        buffer = make_expert_buffer(demos, sampler=sampler)
+        ExpertBatchHook(buffer, cfg.demo.batch_size).register(trainer)
+        if sampler is not None:
+            CurriculumHook(sampler).register(trainer)
+        if lc.bc_start_frames > 0:
+            DelayedCoefficientHook(loss.bc_loss, "bc_coeff", lc.bc_coeff, lc.bc_start_frames).register(trainer)
+
+    acc_pairs = None
+    if inverse_model is not None and demos is not None and EXPERT_ACTION_KEY in demos.keys():
+        n = min(cfg.logger.accuracy_pairs, demos.batch_size.numel())
+        acc_pairs = demos[torch.randperm(demos.batch_size.numel(), generator=torch.Generator().manual_seed(0))[:n]]
+
+    def evaluator():
+        if acc_pairs is None:
+            return {}
+        return {"idm_accuracy": inverse_model_accuracy(inverse_model, acc_pairs)}
+
+    metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator,
+                          pbar_keys=("return_mean",), return_key=("next", "episode_score"))
+    metrics.register(trainer)
+    t0 = time.perf_counter()
+    trainer.train()
+    train_time = time.perf_counter() - t0
+    finished = [r["return_mean"] for r in metrics.rows if r["episodes"]]
+    summary = {
+        "game": cfg.env.game, "variant": cfg.variant, "seed": cfg.seed, "frames": int(trainer.collected_frames),
+        "final_return": finished[-1] if finished else None,
+        "idm_accuracy": metrics.rows[-1].get("idm_accuracy") if metrics.rows else None,
+        "train_time_s": round(train_time, 2),
+        "frames_per_s": round(trainer.collected_frames / train_time, 1),
+        "config": dataclasses.asdict(cfg),
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    torch.save({"actor": actor.state_dict(), "critic": critic.state_dict(),
+                "inverse_model": None if inverse_model is None else inverse_model.state_dict(),
+                "n_actions": base.n_actions, "preprocessing": base.preprocessing,
+                "config": dataclasses.asdict(cfg)}, out / "model.pt")
+    plot_learning_curve(metrics.rows, out / "learning_curve.png", title=f"{cfg.env.game}, {cfg.variant}, seed {cfg.seed}")
+    env.close()
+    return summary
+
+
+def load_expert(path: str | Path):
+    """The actor of a checkpoint written by :func:`train_atari` (``model.pt``) and its metadata."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"expert checkpoint {str(path)!r} does not exist; train one with recipes/atari_expert.py")
+    ckpt = torch.load(path, weights_only=False)
+    actor, _, _ = make_atari_actor_critic(ckpt["n_actions"])
+    actor.load_state_dict(ckpt["actor"])
+    return actor, ckpt
+
+
+@torch.no_grad()
+def record_demos(
+    expert_path: str | Path,
+    out_path: str | Path,
+    *,
+    num_trajectories: int = 100,
+    num_envs: int = 16,
+    seed: int = 0,
+    deterministic: bool = False,
+    max_steps: int = 27_000,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Plays the expert and saves ``num_trajectories`` state-only trajectories, each
+    cut at the first life lost (or at the episode's end), as a memory-mapped dataset
+    of expert pairs with metadata. True actions go only under ``EXPERT_ACTION_KEY``."""
+    actor, ckpt = load_expert(expert_path)
+    game = ckpt["config"]["env"]["game"]
+    pre = ckpt["preprocessing"]
+    env = AtariEnv(game, num_envs, seed=seed, num_threads=ckpt["config"]["env"]["num_threads"],
+                   noop_max=pre["noop_max"], max_episode_frames=pre["max_episode_frames"])
+    td = env.reset()
+    # per env: the trajectory being recorded, or None while waiting for the episode to end
+    states: list[list[torch.Tensor] | None] = [[td["observation"][i].clone()] for i in range(num_envs)]
+    actions: list[list[int]] = [[] for _ in range(num_envs)]
+    scores = [0.0] * num_envs
+    lives0 = td["lives"].squeeze(-1).clone()
+    trajs, acts, returns = [], [], []
+    etype = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    bar = tqdm(total=num_trajectories, desc=f"{game} demos", disable=not progress)
+    while len(trajs) < num_trajectories:
+        with set_exploration_type(etype):
+            td = actor(td)
+        td, root = env.step_and_maybe_reset(td)
+        nxt = td["next"]
+        done = nxt["done"].squeeze(-1)
+        lives = nxt["lives"].squeeze(-1)
+        for i in range(num_envs):
+            if states[i] is not None:
+                states[i].append(nxt["observation"][i].clone())
+                actions[i].append(int(td["action"][i]))
+                scores[i] += float(nxt["score"][i])
+                if (bool(lives[i] < lives0[i]) or bool(done[i]) or len(actions[i]) >= max_steps) \
+                        and len(trajs) < num_trajectories:
+                    trajs.append(torch.stack(states[i]))
+                    acts.append(torch.tensor(actions[i]))
+                    returns.append(scores[i])
+                    bar.update(1)
+                    states[i] = None
+            if bool(done[i]):  # a new episode starts: record it from its first state
+                states[i], actions[i], scores[i] = [root["observation"][i].clone()], [], 0.0
+                lives0[i] = root["lives"][i, 0]
+        td = root
+    bar.close()
+    env.close()
+    demos = pairs_from_trajectories(trajs, acts)
+    lengths = [len(a) for a in acts]
+    meta = {
+        "game": game, "preprocessing": pre, "expert_checkpoint": str(Path(expert_path).resolve()),
+        "expert_frames": ckpt["config"]["total_frames"], "num_trajectories": len(trajs),
+        "returns": returns, "lengths": lengths, "deterministic": deterministic, "seed": seed,
+        "cut": "first life lost or episode end",
+    }
+    save_demos(demos, out_path, meta)
+    return meta
