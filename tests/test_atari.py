@@ -67,7 +67,7 @@ def test_unknown_game_is_refused():
 
 def test_shared_encoder_inverse_model_trains_on_collected_atari_transitions():
     env = AtariEnv("Pong", 2, num_threads=1)
-    actor, critic, enc = make_atari_actor_critic(env.n_actions)
+    actor, critic, enc, _ = make_atari_actor_critic(env.n_actions)
     idm = DualInverseDynamics(enc, env.n_actions, rank=8)
     assert idm.W_s.in_features == 512 and idm.M.shape == (8, 128, 128)
     batch = next(iter(Collector(env, actor, frames_per_batch=8, total_frames=8)))
@@ -169,3 +169,33 @@ def test_atari_recipes_command_line(tmp_path):
                         f"demo.path={tmp_path}/d", "loss.bc_start_frames=8", *common],
                        capture_output=True, text=True, env=env, timeout=300)
     assert r.returncode == 0 and "hybrid_dual" in r.stdout, r.stderr[-2000:]
+
+
+def test_shared_feature_a2c_path_equals_plain_a2c_loss():
+    """Stored collection values + NextStateValueHook + the encoder's feature reuse
+    give the same A2C loss and gradients as TorchRL's A2CLoss computing everything."""
+    from torchrl_hybrid.trainers import VARIANTS, make_hybrid_loss
+    from torchrl_hybrid.trainers.hooks import NextStateValueHook
+
+    torch.manual_seed(0)
+    env = AtariEnv("Pong", 2, num_threads=1)
+    actor, critic, enc, policy = make_atari_actor_critic(env.n_actions)
+    batch = next(iter(Collector(env, policy, frames_per_batch=10, total_frames=10)))
+    assert "state_value" in batch.keys()
+    batch["next", "done"][0, 2] = True  # force an episode end inside the rollout
+    batch["next", "truncated"][0, 2] = True
+    fast = make_hybrid_loss(VARIANTS["a2c"], actor, critic, None, value_estimator_kwargs={"skip_existing": True})
+    plain = make_hybrid_loss(VARIANTS["a2c"], actor, critic, None)
+    grads = []
+    for loss, b in ((fast, NextStateValueHook(critic)(batch.clone())), (plain, batch.clone().exclude("state_value"))):
+        enc._cache = None
+        out = loss(b)
+        sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+        grads.append(([out[k].detach() for k in ("loss_objective", "loss_critic", "loss_entropy")],
+                      enc.convs[0].weight.grad.clone()))
+        for p in list(actor.parameters()) + list(critic.parameters()):
+            p.grad = None
+    for a, b in zip(grads[0][0], grads[1][0]):
+        assert torch.allclose(a, b, atol=1e-5)
+    assert torch.allclose(grads[0][1], grads[1][1], atol=1e-5)
+    env.close()

@@ -1,11 +1,13 @@
 """The paper's Atari networks: a shared CNN encoder, linear actor and critic heads."""
 from __future__ import annotations
 
-import torch
-from torch import nn
-from torchrl.modules import ValueOperator
+import weakref
 
-from torchrl_hybrid.modules.actor_critic import make_policy
+import torch
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.modules import ProbabilisticActor
+from torch.distributions import Categorical
 
 __all__ = ["AtariEncoder", "make_atari_actor_critic"]
 
@@ -35,8 +37,22 @@ class AtariEncoder(nn.Module):
         self.fc = nn.Sequential(nn.Linear(n, out_features), nn.ReLU())
         self.out_features = out_features
         self.in_shape = (stack, size, size)
+        self._cache = None
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        # TorchRL's A2CLoss runs the actor and the critic separately on the same
+        # observation tensor; with a shared encoder the second call reuses the first's
+        # features (same input object and version, same weights, same grad mode), so
+        # the CNN runs once per loss evaluation instead of twice.
+        key = (frames._version, id(self.convs[0].weight), self.convs[0].weight._version, torch.is_grad_enabled())
+        cached = self._cache
+        if cached is not None and cached[0]() is frames and cached[1] == key:
+            return cached[2]
+        out = self._forward(frames)
+        self._cache = (weakref.ref(frames), key, out)
+        return out
+
+    def _forward(self, frames: torch.Tensor) -> torch.Tensor:
         lead = frames.shape[: -3]
         if tuple(frames.shape[-3:]) != self.in_shape:
             raise ValueError(f"expected frame stacks of shape {self.in_shape}, got {tuple(frames.shape[-3:])}")
@@ -45,9 +61,22 @@ class AtariEncoder(nn.Module):
 
 
 def make_atari_actor_critic(n_actions: int, encoder: AtariEncoder | None = None):
-    """Actor and critic sharing one :class:`AtariEncoder` (returned too, so that the
-    inverse model can share it as in the paper)."""
+    """Actor and critic sharing one :class:`AtariEncoder`, and the collection policy.
+
+    Returns ``(actor, critic, encoder, collection_policy)``: the collection policy
+    samples the action and also writes the critic's ``state_value`` from the same
+    features, so that the value estimator need not run the CNN again on the batch
+    (see :class:`~torchrl_hybrid.trainers.hooks.NextStateValueHook`). The encoder is
+    returned so that the inverse model can share it, as in the paper.
+    """
     encoder = encoder if encoder is not None else AtariEncoder()
-    actor = make_policy(nn.Sequential(encoder, nn.Linear(encoder.out_features, n_actions)))
-    critic = ValueOperator(nn.Sequential(encoder, nn.Linear(encoder.out_features, 1)), in_keys=["observation"])
-    return actor, critic, encoder
+    features = TensorDictModule(encoder, in_keys=["observation"], out_keys=["features"])
+    policy_head = TensorDictModule(nn.Linear(encoder.out_features, n_actions), in_keys=["features"], out_keys=["logits"])
+    value_head = TensorDictModule(nn.Linear(encoder.out_features, 1), in_keys=["features"], out_keys=["state_value"])
+    actor = ProbabilisticActor(
+        TensorDictSequential(features, policy_head), in_keys=["logits"], out_keys=["action"],
+        distribution_class=Categorical, return_log_prob=True,
+    )
+    critic = TensorDictSequential(features, value_head, selected_out_keys=["state_value"])
+    collection_policy = TensorDictSequential(actor, value_head)
+    return actor, critic, encoder, collection_policy

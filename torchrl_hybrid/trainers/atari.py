@@ -35,7 +35,13 @@ from torchrl_hybrid.data import (
 from torchrl_hybrid.envs.atari import AtariEnv
 from torchrl_hybrid.modules import AtariEncoder, DualInverseDynamics, MLPInverseDynamics, make_atari_actor_critic
 from torchrl_hybrid.trainers.evaluation import inverse_model_accuracy
-from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook, MetricsHook
+from torchrl_hybrid.trainers.hooks import (
+    CurriculumHook,
+    DelayedCoefficientHook,
+    ExpertBatchHook,
+    MetricsHook,
+    NextStateValueHook,
+)
 from torchrl_hybrid.trainers.hybrid import get_variant, make_hybrid_loss, make_trainer, param_groups
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.plotting import plot_learning_curve
@@ -171,7 +177,7 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
                                  obs_dtype=torch.uint8)
         _check_demo_metadata(meta, cfg, base, cfg.demo.path)
 
-    actor, critic, encoder = make_atari_actor_critic(base.n_actions)
+    actor, critic, encoder, collection_policy = make_atari_actor_critic(base.n_actions)
     inverse_model = None
     if variant.inverse_model == "dual":
         inverse_model = DualInverseDynamics(encoder, base.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank)
@@ -182,9 +188,10 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
         variant, actor, critic, inverse_model, gamma=lc.gamma, critic_coeff=lc.critic_coeff,
         entropy_coeff=lc.entropy_coeff, idm_action_coeff=lc.idm_action_coeff,
         idm_embedding_coeff=lc.idm_embedding_coeff, bc_coeff=lc.bc_coeff,
+        value_estimator_kwargs={"skip_existing": True},  # values come from NextStateValueHook
     )
     optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
-    collector = Collector(env, actor, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames,
+    collector = Collector(env, collection_policy, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames,
                           auto_register_policy_transforms=False)
     logger = None
     if cfg.logger.backend != "none":
@@ -196,6 +203,8 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
         save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
         save_trainer_interval=max(cfg.total_frames // 10, cfg.frames_per_batch),
     )
+    if variant.rl:
+        NextStateValueHook(critic).register(trainer)
     if demos is not None:
         sampler = (CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
                    if cfg.demo.curriculum else None)
@@ -247,7 +256,7 @@ def load_expert(path: str | Path):
     if not path.exists():
         raise FileNotFoundError(f"expert checkpoint {str(path)!r} does not exist; train one with recipes/atari_expert.py")
     ckpt = torch.load(path, weights_only=False)
-    actor, _, _ = make_atari_actor_critic(ckpt["n_actions"])
+    actor = make_atari_actor_critic(ckpt["n_actions"])[0]
     actor.load_state_dict(ckpt["actor"])
     return actor, ckpt
 

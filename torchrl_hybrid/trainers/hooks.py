@@ -13,7 +13,7 @@ from torchrl.data import ReplayBuffer
 from torchrl.objectives import LossModule
 from torchrl.trainers import Trainer, TrainerHookBase
 
-__all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "MetricsHook"]
+__all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "MetricsHook", "NextStateValueHook"]
 
 
 class ExpertBatchHook(TrainerHookBase):
@@ -223,3 +223,45 @@ class MetricsHook(TrainerHookBase):
         trainer.register_op("post_optim_complete_log", self.losses)
         trainer.register_op("post_steps_log", self)
         trainer.register_module(name, self)
+
+
+class NextStateValueHook(TrainerHookBase):
+    """Completes a collected batch with ``("next", "state_value")`` so that the RL
+    loss's value estimator (built with ``skip_existing=True``) need not run the
+    critic on the whole batch again.
+
+    The collection policy already wrote ``state_value`` for every step with the
+    current parameters (one optimiser step per batch keeps them current). The value
+    of a step's next state is the next step's stored value, except after the last
+    step and where the episode ended (the next observation is then the old
+    episode's last one): only those are computed here.
+
+    Args:
+        critic: the value network (reads ``observation``, writes ``state_value``).
+    """
+
+    def __init__(self, critic, value_key: str = "state_value"):
+        self.critic, self.value_key = critic, value_key
+
+    @torch.no_grad()
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase:
+        v = batch.get(self.value_key)
+        if batch.ndim != 2:
+            raise ValueError("NextStateValueHook expects a [envs, time] batch from a single collector")
+        nv = torch.empty_like(v)
+        nv[:, :-1] = v[:, 1:]
+        need = batch.get(("next", "done")).reshape(batch.shape).clone()
+        need[:, -1] = True
+        obs = batch.get(("next", "observation"))[need]
+        nv[need] = self.critic(TensorDict({"observation": obs}, [obs.shape[0]])).get(self.value_key)
+        batch.set(("next", self.value_key), nv)
+        return batch
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        return
+
+    def register(self, trainer: Trainer, name: str = "next_state_value") -> None:
+        trainer.register_op("batch_process", self)

@@ -75,6 +75,7 @@ def make_hybrid_loss(
     idm_forward_coeff: float = 0.0,
     bc_coeff: float = 2.0,
     expert_action_key: str = "expert_action",
+    value_estimator_kwargs: dict | None = None,
 ) -> HybridLoss:
     """Builds the variant's :class:`HybridLoss`.
 
@@ -95,7 +96,7 @@ def make_hybrid_loss(
             critic_coeff=critic_coeff,
             loss_critic_type="l2",
         )
-        rl_loss.make_value_estimator(ValueEstimators.TD1, gamma=gamma)
+        rl_loss.make_value_estimator(ValueEstimators.TD1, gamma=gamma, **(value_estimator_kwargs or {}))
     elif entropy_coeff:
         rl_loss = PolicyEntropyLoss(actor, entropy_coeff=entropy_coeff)
     idm_loss = None
