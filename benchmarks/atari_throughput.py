@@ -25,13 +25,13 @@ logging.getLogger("torchrl").setLevel(logging.WARNING)
 def ours(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int) -> float:
     from torchrl_hybrid.trainers.atari import atari_config, train_atari
 
-    cfg = {"variant": variant, "total_frames": steps, "out_dir": str(out / variant), "threads": threads,
+    cfg = {"variant": variant, "total_frames": 4 * steps, "out_dir": str(out / variant), "threads": threads,
            "env": {"game": game, "num_envs": 16, "num_threads": threads},
            "loss": {"bc_start_frames": 0},
            "logger": {"progress_bar": False, "checkpoint": False, "backend": "none", "log_every_frames": 10**9}}
     if demos is not None:
         cfg["demo"] = {"path": str(demos)}
-    return train_atari(atari_config(cfg))["frames_per_s"]
+    return train_atari(atari_config(cfg))["frames_per_s"] / 4  # game frames/s -> agent steps/s
 
 
 def sb3(game: str, steps: int, threads: int) -> float | None:
@@ -65,7 +65,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         # demos for the hybrid's BC term: an untrained policy's, the cost is what matters here
-        train_atari(atari_config({"variant": "a2c", "total_frames": 80, "out_dir": str(tmp / "expert"),
+        train_atari(atari_config({"variant": "a2c", "total_frames": 320, "out_dir": str(tmp / "expert"),
                                   "env": {"game": a.game, "num_envs": 16},
                                   "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}))
         record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=8, num_envs=8, max_steps=200,

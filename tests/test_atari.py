@@ -88,8 +88,8 @@ from torchrl_hybrid.data import CurriculumSampler, load_demos, make_expert_buffe
 from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = {"env": {"num_envs": 2, "num_threads": 1}, "loss": {"n_steps": 4, "bc_start_frames": 16},
-        "logger": {"progress_bar": False, "log_every_frames": 32, "checkpoint": False}, "total_frames": 64}
+TINY = {"env": {"num_envs": 2, "num_threads": 1}, "loss": {"n_steps": 4, "bc_start_frames": 64},
+        "logger": {"progress_bar": False, "log_every_frames": 128, "checkpoint": False}, "total_frames": 256}
 
 
 def tiny(tmp, **kw):
@@ -106,13 +106,13 @@ def tiny(tmp, **kw):
 @pytest.mark.parametrize("game", ATARI_GAMES)
 def test_every_stage_runs_for_every_game(tmp_path, game):
     expert = train_atari(tiny(tmp_path / "expert", variant="a2c", env={"game": game}))
-    assert expert["frames"] == 64 and (tmp_path / "expert" / "model.pt").exists()
+    assert expert["frames"] == 256 and (tmp_path / "expert" / "model.pt").exists()
     meta = record_demos(tmp_path / "expert" / "model.pt", tmp_path / "demos", num_trajectories=2, num_envs=2,
                         max_steps=12, progress=False)
     assert meta["game"] == game and meta["num_trajectories"] == 2 and max(meta["lengths"]) <= 12
     s = train_atari(tiny(tmp_path / "hybrid", variant="hybrid_dual", env={"game": game},
-                         demo={"path": str(tmp_path / "demos"), "curriculum_frames_per_step": 16}))
-    assert s["frames"] == 64
+                         demo={"path": str(tmp_path / "demos"), "curriculum_frames_per_step": 64}))
+    assert s["frames"] == 256
     assert (tmp_path / "hybrid" / "metrics.csv").read_text().startswith("frames,return_mean")
 
 
@@ -156,8 +156,8 @@ def test_demo_mismatches_are_refused(pong_demos, tmp_path):
 
 def test_atari_recipes_command_line(tmp_path):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    common = ["env.num_envs=2", "env.num_threads=1", "loss.n_steps=4", "total_frames=32", "logger.progress_bar=false",
-              "logger.checkpoint=false", "logger.log_every_frames=16"]
+    common = ["env.num_envs=2", "env.num_threads=1", "loss.n_steps=4", "total_frames=128", "logger.progress_bar=false",
+              "logger.checkpoint=false", "logger.log_every_frames=64"]
     r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_expert.py"), f"out_dir={tmp_path}/e", *common],
                        capture_output=True, text=True, env=env, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
@@ -166,7 +166,7 @@ def test_atari_recipes_command_line(tmp_path):
                        capture_output=True, text=True, env=env, timeout=300)
     assert r.returncode == 0 and "2 Pong trajectories" in r.stdout, r.stderr[-2000:]
     r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari.py"), f"out_dir={tmp_path}/h",
-                        f"demo.path={tmp_path}/d", "loss.bc_start_frames=8", *common],
+                        f"demo.path={tmp_path}/d", "loss.bc_start_frames=32", *common],
                        capture_output=True, text=True, env=env, timeout=300)
     assert r.returncode == 0 and "hybrid_dual" in r.stdout, r.stderr[-2000:]
 

@@ -92,7 +92,7 @@ class AtariOptimConfig:
 @dataclass
 class AtariLoggerConfig:
     backend: str = "csv"
-    log_every_frames: int = 20_000
+    log_every_frames: int = 40_000
     accuracy_pairs: int = 512
     progress_bar: bool = True
     checkpoint: bool = True
@@ -116,6 +116,7 @@ class AtariConfig:
 
     @property
     def frames_per_batch(self) -> int:
+        """Agent steps per collected batch (each is 4 game frames)."""
         return self.env.num_envs * self.loss.n_steps
 
     def validate(self) -> "AtariConfig":
@@ -128,8 +129,9 @@ class AtariConfig:
                 f"variant {self.variant!r} needs expert demos: record them with recipes/atari_demos.py "
                 "and pass demo.path=<folder>"
             )
-        if self.total_frames < self.frames_per_batch:
-            raise ValueError(f"total_frames={self.total_frames} is less than one batch ({self.frames_per_batch})")
+        if self.total_frames < 4 * self.frames_per_batch:
+            raise ValueError(f"total_frames={self.total_frames} (game frames) is less than one batch "
+                             f"({self.frames_per_batch} agent steps = {4 * self.frames_per_batch} frames)")
         return self
 
 
@@ -191,8 +193,11 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
         value_estimator_kwargs={"skip_existing": True},  # values come from NextStateValueHook
     )
     optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
-    collector = Collector(env, collection_policy, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames,
-                          auto_register_policy_transforms=False)
+    # total_frames, bc_start_frames and the curriculum count game frames, as the paper
+    # does (4 per agent step); the collector counts agent steps
+    skip = base.preprocessing["frameskip"]
+    collector = Collector(env, collection_policy, frames_per_batch=cfg.frames_per_batch,
+                          total_frames=-(-cfg.total_frames // skip), auto_register_policy_transforms=False)
     logger = None
     if cfg.logger.backend != "none":
         logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"),
@@ -202,6 +207,7 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
         clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
         save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
         save_trainer_interval=max(cfg.total_frames // 10, cfg.frames_per_batch),
+        frame_skip=skip,
     )
     if variant.rl:
         NextStateValueHook(critic).register(trainer)

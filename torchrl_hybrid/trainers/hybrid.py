@@ -156,12 +156,15 @@ def make_trainer(
     save_trainer_interval: int = 10**9,
     seed: int | None = None,
     clip_per_group: bool = False,
+    frame_skip: int = 1,
 ) -> Trainer:
     """A TorchRL ``Trainer`` with one optimisation step per collected batch.
 
     With ``clip_per_group`` each optimiser parameter group's gradient is clipped
     to ``clip_norm`` on its own (:class:`GroupClipOptimizationStepper`); otherwise
-    the global norm is (TorchRL's default stepper).
+    the global norm is (TorchRL's default stepper). With ``frame_skip`` > 1 the
+    trainer counts game frames (``frame_skip`` per env step), and ``total_frames``
+    is in game frames too.
     """
     if clip_per_group and clip_norm is not None:
         stepper = GroupClipOptimizationStepper(clip_norm)
@@ -170,7 +173,7 @@ def make_trainer(
     return Trainer(
         collector=collector,
         total_frames=total_frames,
-        frame_skip=1,
+        frame_skip=frame_skip,
         optim_steps_per_batch=1,
         loss_module=loss,
         optimizer=optimizer,
