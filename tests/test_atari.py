@@ -199,3 +199,45 @@ def test_shared_feature_a2c_path_equals_plain_a2c_loss():
         assert torch.allclose(a, b, atol=1e-5)
     assert torch.allclose(grads[0][1], grads[1][1], atol=1e-5)
     env.close()
+
+
+def test_encoder_feature_reuse_is_exact():
+    torch.manual_seed(0)
+    enc = AtariEncoder()
+    obs = torch.randint(0, 255, (4, 3, 4, 84, 84), dtype=torch.uint8)
+    a = enc(obs)
+    b = enc(obs.reshape(12, 4, 84, 84))  # a view of the same storage: reused
+    assert b.shape == (12, 512) and torch.equal(b, a.reshape(12, 512))
+    assert b.grad_fn is not None and b.data_ptr() == a.data_ptr()
+    other = obs.clone()
+    other[0, 0, 0, 0, 0] += 1
+    assert enc(other).data_ptr() != a.data_ptr()  # another tensor: recomputed
+    obs[0, 0, 0, 0, 0] += 1  # in-place change of the cached input: recomputed
+    c = enc(obs)
+    assert torch.allclose(c, enc._forward(obs))
+    with torch.no_grad():
+        assert enc(obs).grad_fn is None  # no-grad calls never get grad-mode features
+
+
+def test_inverse_model_loss_is_unchanged_by_feature_reuse():
+    from tensordict import TensorDict
+
+    torch.manual_seed(0)
+    actor, critic, enc, _ = make_atari_actor_critic(6)
+    idm = DualInverseDynamics(enc, 6, rank=8)
+    loss = DualInverseDynamicsLoss(idm, action_coeff=1.0)
+    td = TensorDict({"observation": torch.randint(0, 255, (3, 2, 4, 84, 84), dtype=torch.uint8),
+                     "action": torch.randint(6, (3, 2)),
+                     ("next", "observation"): torch.randint(0, 255, (3, 2, 4, 84, 84), dtype=torch.uint8)}, [3, 2])
+    results = []
+    for warm in (True, False):
+        enc._cache = None
+        if warm:
+            actor.get_dist(td.select("observation"))  # populates the cache with the policy's features
+        out = loss(td)
+        sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+        results.append((out["loss_inverse"].detach(), enc.convs[0].weight.grad.clone()))
+        for p in list(idm.parameters()) + list(actor.parameters()):
+            p.grad = None
+    assert torch.allclose(results[0][0], results[1][0], atol=1e-6)
+    assert torch.allclose(results[0][1], results[1][1], atol=1e-5)

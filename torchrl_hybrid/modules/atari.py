@@ -44,12 +44,22 @@ class AtariEncoder(nn.Module):
         # observation tensor; with a shared encoder the second call reuses the first's
         # features (same input object and version, same weights, same grad mode), so
         # the CNN runs once per loss evaluation instead of twice.
-        key = (frames._version, id(self.convs[0].weight), self.convs[0].weight._version, torch.is_grad_enabled())
+        # A reshaped view of the same contiguous storage (the inverse model flattens the
+        # batch) is a hit too; the cached input is kept alive by the weak reference check,
+        # so its memory cannot have been reused.
+        w = self.convs[0].weight
+        try:
+            key = (frames.data_ptr(), frames.numel(), id(w), w._version, torch.is_grad_enabled())
+        except RuntimeError:  # tensors without storage (TorchRL's policy probing): no caching
+            return self._forward(frames)
         cached = self._cache
-        if cached is not None and cached[0]() is frames and cached[1] == key:
-            return cached[2]
+        if cached is not None and cached[1] == key and frames.is_contiguous():
+            src = cached[0]()
+            if src is not None and src._version == cached[3]:
+                return cached[2].reshape(*frames.shape[:-3], self.out_features)
         out = self._forward(frames)
-        self._cache = (weakref.ref(frames), key, out)
+        if frames.is_contiguous():
+            self._cache = (weakref.ref(frames), key, out, frames._version)
         return out
 
     def _forward(self, frames: torch.Tensor) -> torch.Tensor:

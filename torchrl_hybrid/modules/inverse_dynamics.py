@@ -126,10 +126,10 @@ class DualInverseDynamics(InverseDynamicsModel):
         return (hsM * hxN).sum(-2)
 
     def embed(self, obs: torch.Tensor, next_obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``h_s`` and ``h_ds``; the encoder runs once on both states."""
-        e = self.encoder(torch.stack([obs, next_obs]))
-        h = self.W_s(e)
-        return h[0], self.W_ds(h[1] - h[0])
+        """``h_s`` and ``h_ds``. The encoder sees ``obs`` as given, so an encoder that
+        caches its last output (the shared Atari CNN) reuses the policy's features."""
+        h_s = self.W_s(self.encoder(obs))
+        return h_s, self.W_ds(self.W_s(self.encoder(next_obs)) - h_s)
 
     def action_logits(self, obs, next_obs):
         h_s, h_ds = self.embed(obs, next_obs)
@@ -204,5 +204,5 @@ class MLPInverseDynamics(InverseDynamicsModel):
         self.action_head = nn.Linear(hidden, n_actions)
 
     def action_logits(self, obs, next_obs):
-        h = self.W_s(self.encoder(torch.stack([obs, next_obs])))
-        return self.action_head(self.mlp(torch.cat([h[0], h[1]], -1)))
+        h = torch.cat([self.W_s(self.encoder(obs)), self.W_s(self.encoder(next_obs))], -1)
+        return self.action_head(self.mlp(h))
