@@ -241,3 +241,13 @@ def test_inverse_model_loss_is_unchanged_by_feature_reuse():
             p.grad = None
     assert torch.allclose(results[0][0], results[1][0], atol=1e-6)
     assert torch.allclose(results[0][1], results[1][1], atol=1e-5)
+
+
+def test_orthogonal_initialisation():
+    actor, critic, enc, _ = make_atari_actor_critic(6)
+    w = enc.convs[0].weight.reshape(32, -1)
+    assert torch.allclose(w @ w.T, 2.0 * torch.eye(32), atol=1e-4)  # orthogonal rows, gain sqrt(2)
+    head = actor.module[0].module[1].module
+    assert head.weight.abs().max() < 0.05 and torch.equal(head.bias, torch.zeros(6))
+    with pytest.raises(ValueError, match="init"):
+        make_atari_actor_critic(6, init="xavier")

@@ -1,6 +1,7 @@
 """The paper's Atari networks: a shared CNN encoder, linear actor and critic heads."""
 from __future__ import annotations
 
+import math
 import weakref
 
 import torch
@@ -9,7 +10,7 @@ from torch import nn
 from torchrl.modules import ProbabilisticActor
 from torch.distributions import Categorical
 
-__all__ = ["AtariEncoder", "make_atari_actor_critic"]
+__all__ = ["AtariEncoder", "make_atari_actor_critic", "orthogonal_init_"]
 
 
 class AtariEncoder(nn.Module):
@@ -70,7 +71,17 @@ class AtariEncoder(nn.Module):
         return self.fc(self.convs(x)).reshape(*lead, self.out_features)
 
 
-def make_atari_actor_critic(n_actions: int, encoder: AtariEncoder | None = None):
+def orthogonal_init_(module: nn.Module, gain: float) -> nn.Module:
+    """Orthogonal weights with ``gain`` and zero biases, for every conv/linear layer
+    (the A2C initialisation of the authors' base code and of Stable-Baselines3)."""
+    for m in module.modules():
+        if isinstance(m, (nn.Conv2d, nn.Linear)):
+            nn.init.orthogonal_(m.weight, gain)
+            nn.init.zeros_(m.bias)
+    return module
+
+
+def make_atari_actor_critic(n_actions: int, encoder: AtariEncoder | None = None, init: str = "orthogonal"):
     """Actor and critic sharing one :class:`AtariEncoder`, and the collection policy.
 
     Returns ``(actor, critic, encoder, collection_policy)``: the collection policy
@@ -79,10 +90,21 @@ def make_atari_actor_critic(n_actions: int, encoder: AtariEncoder | None = None)
     (see :class:`~torchrl_hybrid.trainers.hooks.NextStateValueHook`). The encoder is
     returned so that the inverse model can share it, as in the paper.
     """
+    if init not in ("orthogonal", "default"):
+        raise ValueError(f"init must be 'orthogonal' or 'default', got {init!r}")
+    new_encoder = encoder is None
     encoder = encoder if encoder is not None else AtariEncoder()
+    policy_linear, value_linear = nn.Linear(encoder.out_features, n_actions), nn.Linear(encoder.out_features, 1)
+    if init == "orthogonal":
+        # gains as in the authors' A2C base code: sqrt(2) for ReLU layers, 0.01 for the
+        # policy head (near-uniform initial policy), 1 for the value head
+        if new_encoder:
+            orthogonal_init_(encoder, math.sqrt(2))
+        orthogonal_init_(policy_linear, 0.01)
+        orthogonal_init_(value_linear, 1.0)
     features = TensorDictModule(encoder, in_keys=["observation"], out_keys=["features"])
-    policy_head = TensorDictModule(nn.Linear(encoder.out_features, n_actions), in_keys=["features"], out_keys=["logits"])
-    value_head = TensorDictModule(nn.Linear(encoder.out_features, 1), in_keys=["features"], out_keys=["state_value"])
+    policy_head = TensorDictModule(policy_linear, in_keys=["features"], out_keys=["logits"])
+    value_head = TensorDictModule(value_linear, in_keys=["features"], out_keys=["state_value"])
     actor = ProbabilisticActor(
         TensorDictSequential(features, policy_head), in_keys=["logits"], out_keys=["action"],
         distribution_class=Categorical, return_log_prob=True,

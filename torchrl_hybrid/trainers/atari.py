@@ -108,6 +108,7 @@ class AtariConfig:
     d: int = 128
     out_dir: str = "outputs/atari"
     threads: int = 2
+    init: str = "orthogonal"
     env: AtariEnvConfig = field(default_factory=AtariEnvConfig)
     demo: AtariDemoConfig = field(default_factory=AtariDemoConfig)
     loss: AtariLossConfig = field(default_factory=AtariLossConfig)
@@ -179,7 +180,7 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
                                  obs_dtype=torch.uint8)
         _check_demo_metadata(meta, cfg, base, cfg.demo.path)
 
-    actor, critic, encoder, collection_policy = make_atari_actor_critic(base.n_actions)
+    actor, critic, encoder, collection_policy = make_atari_actor_critic(base.n_actions, init=cfg.init)
     inverse_model = None
     if variant.inverse_model == "dual":
         inverse_model = DualInverseDynamics(encoder, base.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank)
