@@ -38,7 +38,7 @@ def main() -> None:
 
     from torchrl.envs import GymEnv, SerialEnv
 
-    from torchrl_hybrid.envs import TabularEnv, TabularModel, make_toy_text_env
+    from torchrl_hybrid.envs import TabularModel, make_toy_text_env
     from torchrl_hybrid.trainers.batched import train_taxi_batched
     from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
 

@@ -4,7 +4,7 @@ import torch.nn.functional as F
 from tensordict import TensorDict
 
 from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics, OneHotEncoder, make_tabular_actor_critic
-from torchrl_hybrid.objectives import DualInverseDynamicsLoss, ExpertBCLoss, HybridLoss, InverseDynamicsLoss
+from torchrl_hybrid.objectives import DualInverseDynamicsLoss, ExpertBCLoss, InverseDynamicsLoss
 from torchrl_hybrid.trainers import VARIANTS, make_hybrid_loss
 
 

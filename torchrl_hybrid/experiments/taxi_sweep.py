@@ -206,7 +206,7 @@ def parameter_table(rank_list=(1, 2, 4), n_states: int = 500, n_actions: int = 6
     from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics, OneHotEncoder
 
     full = n_states * n_actions * n_states
-    rows = [{"model": f"full tensor |S| x |A| x |S|", "factor parameters": full, "all parameters": full,
+    rows = [{"model": "full tensor |S| x |A| x |S|", "factor parameters": full, "all parameters": full,
              "% of full tensor": 100.0}]
     for r in rank_list:
         m = DualInverseDynamics(OneHotEncoder(n_states), n_actions, rank=r)

@@ -28,21 +28,20 @@ from torchrl_hybrid.data import (
     EXPERT_ACTION_KEY,
     CurriculumSampler,
     load_demos,
-    make_expert_buffer,
     pairs_from_trajectories,
     save_demos,
 )
 from torchrl_hybrid.envs.atari import AtariEnv
-from torchrl_hybrid.modules import AtariEncoder, DualInverseDynamics, MLPInverseDynamics, make_atari_actor_critic
+from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics, make_atari_actor_critic
 from torchrl_hybrid.trainers.evaluation import inverse_model_accuracy
-from torchrl_hybrid.trainers.hooks import (
-    CurriculumHook,
-    DelayedCoefficientHook,
-    ExpertBatchHook,
-    MetricsHook,
-    NextStateValueHook,
+from torchrl_hybrid.trainers.hooks import MetricsHook, NextStateValueHook
+from torchrl_hybrid.trainers.hybrid import (
+    attach_demonstrations,
+    get_variant,
+    make_hybrid_loss,
+    make_trainer,
+    param_groups,
 )
-from torchrl_hybrid.trainers.hybrid import get_variant, make_hybrid_loss, make_trainer, param_groups
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
@@ -215,12 +214,8 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
     if demos is not None:
         sampler = (CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
                    if cfg.demo.curriculum else None)
-        buffer = make_expert_buffer(demos, sampler=sampler)
-        ExpertBatchHook(buffer, cfg.demo.batch_size).register(trainer)
-        if sampler is not None:
-            CurriculumHook(sampler).register(trainer)
-        if lc.bc_start_frames > 0:
-            DelayedCoefficientHook(loss.bc_loss, "bc_coeff", lc.bc_coeff, lc.bc_start_frames).register(trainer)
+        attach_demonstrations(trainer, loss, demos, sampler=sampler, batch_size=cfg.demo.batch_size,
+                              bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames)
 
     acc_pairs = None
     if inverse_model is not None and demos is not None and EXPERT_ACTION_KEY in demos.keys():

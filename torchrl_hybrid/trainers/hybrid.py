@@ -19,7 +19,7 @@ from torchrl_hybrid.objectives import (
     PolicyEntropyLoss,
 )
 
-__all__ = ["GroupClipOptimizationStepper", "Variant", "param_groups", "VARIANTS", "get_variant", "make_hybrid_loss", "make_trainer"]
+__all__ = ["GroupClipOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant", "make_hybrid_loss", "make_trainer"]
 
 
 @dataclass(frozen=True)
@@ -201,3 +201,30 @@ def param_groups(loss: HybridLoss) -> list[dict]:
     if idm_params:
         groups.append({"params": idm_params, "name": "inverse_model"})
     return groups
+
+
+def attach_demonstrations(
+    trainer: Trainer,
+    loss: HybridLoss,
+    demos,
+    *,
+    sampler=None,
+    batch_size: int = 32,
+    bc_coeff: float = 1.0,
+    bc_start_frames: int = 0,
+    include_expert_actions: bool = False,
+):
+    """Registers what the BC term needs on a trainer: the expert replay buffer
+    (``sampler`` = rho), the :class:`ExpertBatchHook`, a :class:`CurriculumHook` when
+    the sampler is a curriculum, and a :class:`DelayedCoefficientHook` when the BC
+    term starts after ``bc_start_frames``. Returns the buffer."""
+    from torchrl_hybrid.data import CurriculumSampler, make_expert_buffer
+    from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook
+
+    buffer = make_expert_buffer(demos, sampler=sampler, include_expert_actions=include_expert_actions)
+    ExpertBatchHook(buffer, batch_size).register(trainer)
+    if isinstance(sampler, CurriculumSampler):
+        CurriculumHook(sampler).register(trainer)
+    if bc_start_frames > 0:
+        DelayedCoefficientHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_start_frames).register(trainer)
+    return buffer

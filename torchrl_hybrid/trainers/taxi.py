@@ -25,7 +25,6 @@ from torchrl_hybrid.data import (
     VisitedStateSampler,
     apply_demo_noise,
     load_demos,
-    make_expert_buffer,
     save_demos,
     tabular_state_pairs,
     tabular_trajectories,
@@ -39,8 +38,8 @@ from torchrl_hybrid.modules import (
     make_tabular_actor_critic,
 )
 from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
-from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook, MetricsHook
-from torchrl_hybrid.trainers.hybrid import get_variant, make_hybrid_loss, make_trainer, param_groups
+from torchrl_hybrid.trainers.hooks import MetricsHook
+from torchrl_hybrid.trainers.hybrid import attach_demonstrations, get_variant, make_hybrid_loss, make_trainer, param_groups
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
@@ -250,20 +249,13 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
         clip_per_group=cfg.optim.clip == "per_group",
     )
 
-    expert_buffer = None
     if variant.bc is not None:
-        if cfg.demo.rho == "visited":
-            sampler = VisitedStateSampler(S)
-        elif cfg.demo.rho == "curriculum":
-            sampler = CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
-        else:
-            sampler = None
-        expert_buffer = make_expert_buffer(demos, sampler=sampler, include_expert_actions=variant.bc == "true")
-        ExpertBatchHook(expert_buffer, cfg.demo.batch_size).register(trainer)
-        if isinstance(sampler, CurriculumSampler):
-            CurriculumHook(sampler).register(trainer)
-        if lc.bc_start_frames > 0:
-            DelayedCoefficientHook(loss.bc_loss, "bc_coeff", lc.bc_coeff, lc.bc_start_frames).register(trainer)
+        sampler = {"visited": lambda: VisitedStateSampler(S), "uniform": lambda: None,
+                   "curriculum": lambda: CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step),
+                   }[cfg.demo.rho]()
+        attach_demonstrations(trainer, loss, demos, sampler=sampler, batch_size=cfg.demo.batch_size,
+                              bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
+                              include_expert_actions=variant.bc == "true")
 
     def evaluator(episodes_env=eval_env):
         returns = evaluate_policy(episodes_env, actor, cfg.env.max_episode_steps)
