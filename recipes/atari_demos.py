@@ -17,7 +17,7 @@ def main(cfg: DictConfig) -> None:
     try:
         meta = record_demos(cfg.expert, cfg.out, num_trajectories=cfg.num_trajectories, num_envs=cfg.num_envs,
                             seed=cfg.seed, deterministic=cfg.deterministic, max_steps=cfg.max_steps,
-                            progress=cfg.progress)
+                            cut=cfg.cut, progress=cfg.progress)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

@@ -140,6 +140,20 @@ def test_demo_dataset_round_trip_and_curriculum(pong_demos):
     assert int(buf.sample(512)["step"].max()) > 2 and "expert_action" not in buf.sample(4).keys()
 
 
+def test_demo_cut_at_first_point_in_games_without_lives(pong_demos, tmp_path):
+    # Pong has no lives: "auto" cuts at the first point lost (negative reward)
+    meta = record_demos(pong_demos / "expert" / "model.pt", tmp_path / "d", num_trajectories=2, num_envs=2,
+                        max_steps=400, progress=False)
+    assert meta["cut"].startswith("first point lost") and "point" in meta["ends"]
+    for end, n in zip(meta["ends"], meta["lengths"]):
+        assert end in ("point", "max_steps") and (n < 400) == (end == "point")
+    meta = record_demos(pong_demos / "expert" / "model.pt", tmp_path / "e", num_trajectories=1, num_envs=2,
+                        max_steps=150, cut="episode", progress=False)
+    assert meta["ends"] == ["max_steps"] and meta["lengths"] == [150]
+    with pytest.raises(ValueError, match="cut='lives'"):
+        record_demos(pong_demos / "expert" / "model.pt", tmp_path / "f", cut="lives", progress=False)
+
+
 def test_demo_mismatches_are_refused(pong_demos, tmp_path):
     with pytest.raises(ValueError, match="demos are for 'Pong'"):
         train_atari(tiny(tmp_path, variant="hybrid_dual", env={"game": "Breakout"},
@@ -243,6 +257,53 @@ def test_inverse_model_loss_is_unchanged_by_feature_reuse():
     assert torch.allclose(results[0][1], results[1][1], atol=1e-5)
 
 
+def _count_rows(enc):
+    rows = []
+    enc.convs.register_forward_hook(lambda m, inp, out: rows.append(inp[0].shape[0]))
+    return rows
+
+
+def test_next_observation_features_are_reused_exactly():
+    torch.manual_seed(0)
+    enc = AtariEncoder()
+    rows = _count_rows(enc)
+    obs = torch.randint(0, 255, (3, 5, 4, 84, 84), dtype=torch.uint8)
+    nxt = torch.randint(0, 255, (3, 5, 4, 84, 84), dtype=torch.uint8)
+    nxt[:, :-1] = obs[:, 1:]  # a rollout: the next observation is the next step's observation ...
+    nxt[1, 2] = torch.randint(0, 255, (4, 84, 84), dtype=torch.uint8)  # ... except where an episode ended
+    f_obs = enc(obs)
+    f_next = enc(nxt)
+    assert rows == [15, 4]  # the CNN ran on 3 last steps + 1 episode end only
+    assert f_next.shape == (3, 5, 512) and torch.allclose(f_next, enc._forward(nxt), atol=1e-5)
+    assert torch.equal(f_next[0, :-1], f_obs[0, 1:])
+    with torch.no_grad():
+        rows.clear()
+        assert torch.equal(enc(obs), f_obs.detach()) and rows == []  # no-grad reuses grad features, detached
+        assert enc(nxt).grad_fn is None and rows == [15]  # no shifting without grad (collection)
+
+
+def test_inverse_model_gradients_are_unchanged_by_next_state_reuse():
+    from tensordict import TensorDict
+
+    torch.manual_seed(0)
+    actor, critic, enc, _ = make_atari_actor_critic(6)
+    idm = DualInverseDynamics(enc, 6, rank=8)
+    loss = DualInverseDynamicsLoss(idm, action_coeff=1.0, embedding_coeff=0.1)
+    obs = torch.randint(0, 255, (2, 4, 4, 84, 84), dtype=torch.uint8)
+    nxt = torch.randint(0, 255, (2, 4, 4, 84, 84), dtype=torch.uint8)
+    nxt[:, :-1] = obs[:, 1:]
+    td = TensorDict({"observation": obs, "action": torch.randint(6, (2, 4)), ("next", "observation"): nxt}, [2, 4])
+    results = []
+    for reuse in (True, False):
+        enc._cache, enc.reuse_features = None, reuse
+        out = loss(td)
+        sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+        results.append([out["loss_inverse"].detach()] + [p.grad.clone() for p in idm.parameters()])
+        idm.zero_grad(set_to_none=True)
+    for a, b in zip(*results):
+        assert torch.allclose(a, b, atol=1e-5, rtol=1e-4)
+
+
 def test_orthogonal_initialisation():
     actor, critic, enc, _ = make_atari_actor_critic(6)
     w = enc.convs[0].weight.reshape(32, -1)
@@ -251,3 +312,27 @@ def test_orthogonal_initialisation():
     assert head.weight.abs().max() < 0.05 and torch.equal(head.bias, torch.zeros(6))
     with pytest.raises(ValueError, match="init"):
         make_atari_actor_critic(6, init="xavier")
+
+
+def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
+    from torchrl_hybrid.experiments.atari_compare import CompareConfig, run_compare
+
+    base = {k: v for k, v in TINY.items() if k != "total_frames"}
+    cfg = CompareConfig(games=["Pong"], variants=["a2c", "hybrid_dual"], seeds=[0], total_frames=256,
+                        out_dir=str(tmp_path), demos={"Pong": str(pong_demos / "demos")}, workers=1, base=base)
+    result = run_compare(cfg)
+    assert [t["variant"] for t in result["Pong"]] == ["a2c", "hybrid_dual"]
+    assert result["Pong"][0]["idm_accuracy"] is None and 0 <= result["Pong"][1]["idm_accuracy"] <= 1
+    for f in ("curves.csv", "summary.csv", "comparison.png"):
+        assert (tmp_path / "Pong" / f).stat().st_size > 0
+    rows = (tmp_path / "Pong" / "curves.csv").read_text().splitlines()
+    assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy" and len(rows) == 1 + 2 * 3  # 3 logged points a run
+    capsys.readouterr()
+    run_compare(cfg)  # finished runs are not run again
+    assert "0 run(s) to do" in capsys.readouterr().out
+    with pytest.raises(ValueError, match=r"\+demos.Breakout=<folder>"):
+        run_compare(CompareConfig(games=["Breakout"], out_dir=str(tmp_path)))
+    with pytest.raises(FileNotFoundError, match="holds no dataset"):
+        run_compare(CompareConfig(games=["Pong"], out_dir=str(tmp_path), demos={"Pong": str(tmp_path)}))
+    with pytest.raises(ValueError, match="unknown Atari variant"):
+        run_compare(CompareConfig(variants=["ppo"], out_dir=str(tmp_path)))

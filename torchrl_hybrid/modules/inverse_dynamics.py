@@ -53,7 +53,8 @@ class InverseDynamicsModel(nn.Module):
     @torch.no_grad()
     def infer(self, obs: torch.Tensor, next_obs: torch.Tensor) -> torch.Tensor:
         """The inferred action M(s, s') (argmax, detached)."""
-        return self.action_logits(obs, next_obs).argmax(-1)
+        with torch.no_grad():
+            return self.action_logits(obs, next_obs).argmax(-1)
 
 
 class DualInverseDynamics(InverseDynamicsModel):

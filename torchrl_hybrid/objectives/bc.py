@@ -111,11 +111,13 @@ class ExpertBCLoss(LossModule):
         if n == 0:
             zero = torch.zeros((), device=self.bc_coeff.device)
             return TensorDict({"loss_bc": zero, "bc_log_prob": zero, "bc_batch_size": zero}, [])
+        # Only the actor's inputs go in: the actor may write its own "action". The
+        # policy runs first so that an encoder shared with the inverse model can hand
+        # its features to the (no-grad) labelling pass.
+        dist = self.actor_network.get_dist(tensordict.select(*self.actor_network.in_keys))
         labels = self.labels(tensordict)
         if self.inverse_model is not None:
             tensordict.set(self.tensor_keys.inferred_action, labels)
-        # Only the actor's inputs go in: the actor may write its own "action".
-        dist = self.actor_network.get_dist(tensordict.select(*self.actor_network.in_keys))
         log_prob = dist.log_prob(labels)
         return TensorDict(
             {

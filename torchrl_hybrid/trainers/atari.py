@@ -273,11 +273,24 @@ def record_demos(
     seed: int = 0,
     deterministic: bool = False,
     max_steps: int = 27_000,
+    cut: str = "auto",
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Plays the expert and saves ``num_trajectories`` state-only trajectories, each
-    cut at the first life lost (or at the episode's end), as a memory-mapped dataset
-    of expert pairs with metadata. True actions go only under ``EXPERT_ACTION_KEY``."""
+    """Plays the expert and saves ``num_trajectories`` state-only trajectories as a
+    memory-mapped dataset of expert pairs with metadata. True actions go only under
+    ``EXPERT_ACTION_KEY``.
+
+    ``cut`` says where a trajectory ends (always at the episode's end or after
+    ``max_steps`` at the latest): ``"life"`` at the first life lost (the paper);
+    ``"point"`` at the first negative reward (a point lost: the analogue of a life in
+    games without lives such as Pong, whose whole episodes run to thousands of steps);
+    ``"episode"`` never earlier; ``"auto"`` = ``"life"`` when the game has lives,
+    else ``"point"``.
+    """
+    if cut not in ("auto", "life", "point", "episode"):
+        raise ValueError(f"cut={cut!r}: choose one of 'auto', 'life', 'point', 'episode'")
+    if num_trajectories < 1 or max_steps < 1:
+        raise ValueError(f"num_trajectories and max_steps must be >= 1, got {num_trajectories}, {max_steps}")
     actor, ckpt = load_expert(expert_path)
     game = ckpt["config"]["env"]["game"]
     pre = ckpt["preprocessing"]
@@ -289,7 +302,9 @@ def record_demos(
     actions: list[list[int]] = [[] for _ in range(num_envs)]
     scores = [0.0] * num_envs
     lives0 = td["lives"].squeeze(-1).clone()
-    trajs, acts, returns = [], [], []
+    if cut == "auto":
+        cut = "life" if bool((lives0 > 0).all()) else "point"
+    trajs, acts, returns, ends = [], [], [], []
     etype = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     bar = tqdm(total=num_trajectories, desc=f"{game} demos", disable=not progress)
     while len(trajs) < num_trajectories:
@@ -304,8 +319,12 @@ def record_demos(
                 states[i].append(nxt["observation"][i].clone())
                 actions[i].append(int(td["action"][i]))
                 scores[i] += float(nxt["score"][i])
-                if (bool(lives[i] < lives0[i]) or bool(done[i]) or len(actions[i]) >= max_steps) \
-                        and len(trajs) < num_trajectories:
+                end = ("life" if cut == "life" and bool(lives[i] < lives0[i])
+                       else "point" if cut == "point" and float(nxt["score"][i]) < 0
+                       else "episode" if bool(done[i])
+                       else "max_steps" if len(actions[i]) >= max_steps else None)
+                if end is not None and len(trajs) < num_trajectories:
+                    ends.append(end)
                     trajs.append(torch.stack(states[i]))
                     acts.append(torch.tensor(actions[i]))
                     returns.append(scores[i])
@@ -322,8 +341,9 @@ def record_demos(
     meta = {
         "game": game, "preprocessing": pre, "expert_checkpoint": str(Path(expert_path).resolve()),
         "expert_frames": ckpt["config"]["total_frames"], "num_trajectories": len(trajs),
-        "returns": returns, "lengths": lengths, "deterministic": deterministic, "seed": seed,
-        "cut": "first life lost or episode end",
+        "returns": returns, "lengths": lengths, "ends": ends, "deterministic": deterministic, "seed": seed,
+        "cut": {"life": "first life lost", "point": "first point lost (negative reward)",
+                "episode": "episode end"}[cut] + f", episode end or {max_steps} steps",
     }
     save_demos(demos, out_path, meta)
     return meta

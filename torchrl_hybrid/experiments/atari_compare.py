@@ -1,0 +1,228 @@
+"""Atari comparison: variants x seeds on one or more games, then curves, a figure
+and a summary table per game.
+
+``recipes/atari_compare.py`` is the command line. Each run is an ordinary
+:func:`~torchrl_hybrid.trainers.atari.train_atari` run in ``<out_dir>/<game>/<variant>_s<seed>``;
+a run whose ``summary.json`` exists is not run again, so a sweep interrupted at
+the end of a session picks up where it stopped (at run granularity).
+"""
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import math
+import multiprocessing as mp
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = ["CompareConfig", "run_compare", "analyse_compare", "load_runs"]
+
+
+@dataclass
+class CompareConfig:
+    """What to run. ``demos`` maps a game to its demo folder (needed by every
+    variant but ``a2c``); ``base`` holds :class:`AtariConfig` overrides for every run."""
+
+    games: Sequence[str] = ("Pong", "Breakout")
+    variants: Sequence[str] = ("a2c", "hybrid_dual")
+    seeds: Sequence[int] = (0, 1)
+    total_frames: int = 2_000_000
+    out_dir: str = "results/atari/compare"
+    demos: dict = field(default_factory=dict)
+    workers: int = 2
+    base: dict = field(default_factory=dict)
+
+    def validate(self) -> "CompareConfig":
+        from torchrl_hybrid.trainers.atari import ATARI_VARIANTS
+        from torchrl_hybrid.trainers.hybrid import get_variant
+
+        bad = sorted(set(self.variants) - set(ATARI_VARIANTS))
+        if bad:
+            raise ValueError(f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)}")
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
+        if any(get_variant(v).bc is not None for v in self.variants):
+            missing = [g for g in self.games if not self.demos.get(g)]
+            if missing:
+                raise ValueError(f"no demos for {missing}: record them with recipes/atari_demos.py and pass "
+                                 + " ".join(f"+demos.{g}=<folder>" for g in missing))
+            for g in self.games:
+                if not (Path(self.demos[g]) / "metadata.json").exists():
+                    raise FileNotFoundError(f"demos for {g}: {self.demos[g]!r} holds no dataset "
+                                            "(metadata.json); record it with recipes/atari_demos.py")
+        return self
+
+
+def _run_dir(cfg: CompareConfig, game: str, variant: str, seed: int) -> Path:
+    return Path(cfg.out_dir) / game / f"{variant}_s{seed}"
+
+
+def _one(job: tuple[dict, str]) -> tuple[str, float]:
+    from torchrl_hybrid.trainers.atari import atari_config, train_atari
+
+    d, name = job
+    t0 = time.perf_counter()
+    train_atari(atari_config(d))
+    return name, time.perf_counter() - t0
+
+
+def _merge(a: dict, b: dict) -> dict:
+    out = copy.deepcopy(a)
+    for k, v in b.items():
+        out[k] = _merge(out.get(k, {}), v) if isinstance(v, dict) else v
+    return out
+
+
+def run_compare(cfg: CompareConfig) -> dict[str, Any]:
+    """Runs the missing runs (``workers`` at a time, torch and ALE threads split
+    between them), then :func:`analyse_compare`."""
+    cfg.validate()
+    # 2 cores: two single-threaded runs side by side beat one two-threaded run
+    threads = max(1, 2 // cfg.workers) if cfg.workers > 1 else 2
+    jobs = []
+    for game in cfg.games:
+        for variant in cfg.variants:
+            for seed in cfg.seeds:
+                out = _run_dir(cfg, game, variant, seed)
+                if (out / "summary.json").exists():
+                    continue
+                d = _merge({"threads": threads, "env": {"num_threads": threads},
+                            "logger": {"progress_bar": cfg.workers == 1}}, cfg.base)
+                d = _merge(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
+                               "out_dir": str(out), "env": {"game": game},
+                               "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
+                jobs.append((d, f"{game}/{variant}_s{seed}"))
+    print(f"{len(jobs)} run(s) to do in {cfg.out_dir}", flush=True)
+    t0 = time.perf_counter()
+    if jobs:
+        if cfg.workers == 1:
+            done = map(_one, jobs)
+        else:
+            pool = mp.get_context("spawn").Pool(cfg.workers)
+            done = pool.imap_unordered(_one, jobs)
+        for name, secs in done:
+            print(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)", flush=True)
+        if cfg.workers > 1:
+            pool.close()
+            pool.join()
+    return analyse_compare(cfg)
+
+
+def load_runs(cfg: CompareConfig, game: str) -> dict[str, list[dict]]:
+    """variant -> the finished runs of ``game`` (metrics rows and summary)."""
+    out: dict[str, list[dict]] = {}
+    for variant in cfg.variants:
+        for seed in cfg.seeds:
+            d = _run_dir(cfg, game, variant, seed)
+            if not (d / "summary.json").exists():
+                continue
+            with open(d / "metrics.csv") as f:
+                rows = [{k: float(v) if v not in ("", None) else math.nan for k, v in r.items()}
+                        for r in csv.DictReader(f)]
+            out.setdefault(variant, []).append(
+                {"seed": seed, "rows": rows, "summary": json.loads((d / "summary.json").read_text())})
+    return out
+
+
+def _score_curve(rows: list[dict], frames: np.ndarray, window: int) -> np.ndarray:
+    """Mean episode score over the last ``window`` game frames at each of ``frames``,
+    weighting each logged window by its number of finished episodes."""
+    f = np.array([r["frames"] for r in rows])
+    n = np.array([r.get("episodes", 0.0) for r in rows])
+    s = np.nan_to_num(np.array([r.get("return_mean", math.nan) for r in rows])) * n
+    out = np.full(len(frames), math.nan)
+    for i, x in enumerate(frames):
+        m = (f <= x) & (f > x - window)
+        if n[m].sum() > 0:
+            out[i] = s[m].sum() / n[m].sum()
+    return out
+
+
+def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]:
+    """Per game: ``curves.csv`` (every logged point of every run), ``summary.csv``
+    and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    result: dict[str, Any] = {}
+    root = Path(cfg.out_dir)
+    for game in cfg.games:
+        runs = load_runs(cfg, game)
+        if not runs:
+            continue
+        gdir = root / game
+        with open(gdir / "curves.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["variant", "seed", "frames", "episodes", "return_mean", "idm_accuracy"])
+            for variant, rs in runs.items():
+                for r in rs:
+                    for row in r["rows"]:
+                        w.writerow([variant, r["seed"], int(row["frames"]), int(row.get("episodes", 0)),
+                                    row.get("return_mean", math.nan), row.get("idm_accuracy", "")])
+        # the logged frames of the longest run; the window shrinks for short runs
+        longest = max((r["rows"] for rs in runs.values() for r in rs), key=len)
+        grid = np.array([row["frames"] for row in longest])
+        win = min(window, int(grid[-1]))
+        grid = grid[grid >= win]
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+        table = []
+        for ci, (variant, rs) in enumerate(runs.items()):
+            curves = np.array([_score_curve(r["rows"], grid, win) for r in rs])
+            for c in curves:
+                axes[0].plot(grid, c, color=f"C{ci}", lw=0.8, alpha=0.4)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean_curve = np.nanmean(curves, 0)
+            axes[0].plot(grid, mean_curve, color=f"C{ci}", lw=2, label=f"{variant} ({len(rs)} seeds)")
+            final = curves[:, -1]
+            with warnings.catch_warnings():  # NaN where no episode has finished yet
+                warnings.simplefilter("ignore", RuntimeWarning)
+                auc = np.nanmean(curves, 1)  # mean of the smoothed curve = normalised area under it
+                final_mean, auc_mean = float(np.nanmean(final)), float(np.nanmean(auc))
+            acc = [r["summary"].get("idm_accuracy") for r in rs]
+            table.append({
+                "variant": variant, "seeds": len(rs),
+                "final_mean": final_mean, "final_per_seed": [round(float(x), 2) for x in final],
+                "auc_mean": auc_mean, "auc_per_seed": [round(float(x), 2) for x in auc],
+                "idm_accuracy": None if acc[0] is None else float(np.mean(acc)),
+                "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs])),
+            })
+            accs = [[(row["frames"], row["idm_accuracy"]) for row in r["rows"]
+                     if not math.isnan(row.get("idm_accuracy", math.nan))] for r in rs]
+            for k, pts in enumerate(accs):
+                if pts:
+                    axes[1].plot(*zip(*pts), color=f"C{ci}", lw=1, label=variant if k == 0 else None)
+        axes[0].set_xlabel("game frames")
+        axes[0].set_ylabel(f"episode score (raw), mean over last {win // 1000}k frames")
+        axes[0].set_title(f"{game}: hybrid vs A2C")
+        axes[0].legend(loc="upper left")
+        axes[0].grid(alpha=0.3)
+        axes[1].set_ylim(0, 1)
+        axes[1].set_xlabel("game frames")
+        axes[1].set_ylabel("inferred = true expert action")
+        axes[1].set_title("inverse-model accuracy on demo pairs")
+        axes[1].grid(alpha=0.3)
+        if axes[1].get_legend_handles_labels()[0]:
+            axes[1].legend(loc="lower right")
+        fig.tight_layout()
+        fig.savefig(gdir / "comparison.png", dpi=110)
+        plt.close(fig)
+        with open(gdir / "summary.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(table[0]))
+            w.writeheader()
+            w.writerows(table)
+        result[game] = table
+        for t in table:
+            print(f"{game:10s} {t['variant']:12s} seeds {t['seeds']}  final {t['final_mean']:7.2f} "
+                  f"{t['final_per_seed']}  AUC {t['auc_mean']:7.2f} {t['auc_per_seed']}"
+                  + (f"  IDM acc {t['idm_accuracy']:.1%}" if t["idm_accuracy"] is not None else ""))
+    (root / "summary.json").write_text(json.dumps(result, indent=2))
+    return result
