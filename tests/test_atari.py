@@ -336,3 +336,30 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
         run_compare(CompareConfig(games=["Pong"], out_dir=str(tmp_path), demos={"Pong": str(tmp_path)}))
     with pytest.raises(ValueError, match="unknown Atari variant"):
         run_compare(CompareConfig(variants=["ppo"], out_dir=str(tmp_path)))
+
+
+def test_fused_collection_policy_equals_actor_and_critic():
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    torch.manual_seed(0)
+    actor, critic, enc, policy = make_atari_actor_critic(6)
+    obs = torch.randint(0, 255, (2, 3, 4, 84, 84), dtype=torch.uint8)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = policy(TensorDict({"observation": obs}, [2, 3]))
+        ref = actor(TensorDict({"observation": obs}, [2, 3]))
+        value = critic(TensorDict({"observation": obs}, [2, 3]))["state_value"]
+    assert torch.equal(td["action"], ref["action"])
+    assert torch.allclose(td["action_log_prob"], ref["action_log_prob"], atol=1e-6)
+    assert torch.allclose(td["state_value"], value, atol=1e-6) and td["state_value"].shape == (2, 3, 1)
+    # sampling: frequencies follow the actor's distribution
+    head = policy.module.policy_head
+    with torch.no_grad():
+        head.bias.copy_(torch.tensor([0.0, 1.0, 2.0, -1.0, 0.5, 0.0]))
+        head.weight.zero_()
+        one = obs[:1, :1].expand(1, 4000, 4, 84, 84).contiguous()
+        with set_exploration_type(ExplorationType.RANDOM):
+            td = policy(TensorDict({"observation": one}, [1, 4000]))
+    freq = torch.bincount(td["action"].flatten(), minlength=6).float() / 4000
+    assert torch.allclose(freq, head.bias.softmax(-1), atol=0.035)  # 4.5 binomial std
+    assert torch.allclose(td["action_log_prob"], head.bias.log_softmax(-1)[td["action"]], atol=1e-5)

@@ -1,5 +1,5 @@
 """Networks: plain ``nn.Module``s (tensors in, tensors out) and their TorchRL wrappers."""
-from torchrl_hybrid.modules.atari import AtariEncoder, make_atari_actor_critic
+from torchrl_hybrid.modules.atari import AtariCollectionPolicy, AtariEncoder, make_atari_actor_critic
 from torchrl_hybrid.modules.actor_critic import make_policy, make_tabular_actor_critic, tabular_net
 from torchrl_hybrid.modules.encoders import OneHotEncoder
 from torchrl_hybrid.modules.inverse_dynamics import (
@@ -11,6 +11,7 @@ from torchrl_hybrid.modules.inverse_dynamics import (
 __all__ = [
     "AtariEncoder",
     "make_atari_actor_critic",
+    "AtariCollectionPolicy",
     "DualInverseDynamics",
     "InverseDynamicsModel",
     "MLPInverseDynamics",
