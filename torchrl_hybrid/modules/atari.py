@@ -18,6 +18,8 @@ class AtariEncoder(nn.Module):
     """conv 32 8x8/4, conv 64 4x4/2, conv 32 3x3/1, fc 512, ReLU after each.
 
     Note the third convolution has 32 filters (the paper's text), not the usual 64.
+    With ``channels_last`` (default) the convolutions run in channels-last memory
+    format, which makes their CPU backward pass about a third faster.
     Takes uint8 frame stacks ``[*B, stack, 84, 84]`` (any leading dims) and scales
     them to [0, 1]. ``out_features`` (512) is what the inverse model's ``W_s`` reads.
 
@@ -26,7 +28,7 @@ class AtariEncoder(nn.Module):
         torch.Size([2, 3, 512])
     """
 
-    def __init__(self, stack: int = 4, size: int = 84, out_features: int = 512):
+    def __init__(self, stack: int = 4, size: int = 84, out_features: int = 512, channels_last: bool = True):
         super().__init__()
         self.convs = nn.Sequential(
             nn.Conv2d(stack, 32, 8, stride=4), nn.ReLU(),
@@ -41,6 +43,11 @@ class AtariEncoder(nn.Module):
         self.in_shape = (stack, size, size)
         self._cache = None
         self.reuse_features = True
+        # oneDNN's convolutions run their backward pass about a third faster on
+        # channels-last tensors on CPU (fwd+bwd of 80 frame stacks: 23.5 -> 16 ms here)
+        self.channels_last = channels_last
+        if channels_last:
+            self.convs.to(memory_format=torch.channels_last)
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         # The CNN dominates the cost of an update, and the losses of one update see the
@@ -104,6 +111,11 @@ class AtariEncoder(nn.Module):
         if tuple(frames.shape[-3:]) != self.in_shape:
             raise ValueError(f"expected frame stacks of shape {self.in_shape}, got {tuple(frames.shape[-3:])}")
         x = frames.reshape(-1, *self.in_shape).float().div_(255.0)
+        if self.channels_last:
+            try:
+                x = x.contiguous(memory_format=torch.channels_last)
+            except RuntimeError:  # inside torch.vmap (TorchRL's value estimators): keep the layout
+                pass
         return self.fc(self.convs(x)).reshape(*lead, self.out_features)
 
 
@@ -112,7 +124,10 @@ def orthogonal_init_(module: nn.Module, gain: float) -> nn.Module:
     (the A2C initialisation of the authors' base code and of Stable-Baselines3)."""
     for m in module.modules():
         if isinstance(m, (nn.Conv2d, nn.Linear)):
-            nn.init.orthogonal_(m.weight, gain)
+            w = torch.empty(m.weight.shape)  # contiguous: orthogonal_ views it as a matrix
+            nn.init.orthogonal_(w, gain)
+            with torch.no_grad():
+                m.weight.copy_(w)  # keeps the weight's memory format (channels-last convs)
             nn.init.zeros_(m.bias)
     return module
 
