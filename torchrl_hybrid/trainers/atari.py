@@ -45,7 +45,7 @@ from torchrl_hybrid.trainers.hybrid import (
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
-__all__ = ["AtariConfig", "atari_config", "train_atari", "record_demos", "load_expert"]
+__all__ = ["AtariConfig", "AtariRun", "atari_config", "build_atari", "train_atari", "record_demos", "load_expert"]
 
 ATARI_VARIANTS = ("hybrid_dual", "hybrid_mlp", "bc_dual", "a2c")
 
@@ -158,9 +158,26 @@ def _check_demo_metadata(meta: dict, cfg: AtariConfig, env: AtariEnv, path: str)
         )
 
 
-def train_atari(cfg: AtariConfig) -> dict[str, Any]:
-    """Trains one agent (``hybrid_dual``, ``hybrid_mlp``, ``bc_dual`` or ``a2c``) and
-    writes ``metrics.csv``, ``summary.json``, ``learning_curve.png``, ``model.pt``."""
+@dataclass
+class AtariRun:
+    """Everything :func:`build_atari` wires together (see :func:`train_atari`)."""
+
+    cfg: AtariConfig
+    trainer: Any
+    env: TransformedEnv
+    actor: Any
+    critic: Any
+    encoder: Any
+    inverse_model: Any
+    collection_policy: Any
+    loss: Any
+    metrics: MetricsHook
+    out: Path
+
+
+def build_atari(cfg: AtariConfig) -> AtariRun:
+    """Builds the env, networks, losses, collector and TorchRL trainer of one run
+    (hooks registered), without training: ``build_atari(cfg).trainer.train()``."""
     cfg.validate()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     os.environ.setdefault("TQDM_MININTERVAL", "1" if sys.stderr.isatty() else "30")
@@ -230,6 +247,15 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
     metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator,
                           pbar_keys=("return_mean",), return_key=("next", "episode_score"))
     metrics.register(trainer)
+    return AtariRun(cfg, trainer, env, actor, critic, encoder, inverse_model, collection_policy, loss, metrics, out)
+
+
+def train_atari(cfg: AtariConfig) -> dict[str, Any]:
+    """Trains one agent (``hybrid_dual``, ``hybrid_mlp``, ``bc_dual`` or ``a2c``) and
+    writes ``metrics.csv``, ``summary.json``, ``learning_curve.png``, ``model.pt``."""
+    run = build_atari(cfg)
+    trainer, metrics, out, env, base = run.trainer, run.metrics, run.out, run.env, run.env.base_env
+    actor, critic, inverse_model = run.actor, run.critic, run.inverse_model
     t0 = time.perf_counter()
     trainer.train()
     train_time = time.perf_counter() - t0
