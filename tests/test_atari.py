@@ -363,3 +363,16 @@ def test_fused_collection_policy_equals_actor_and_critic():
     freq = torch.bincount(td["action"].flatten(), minlength=6).float() / 4000
     assert torch.allclose(freq, head.bias.softmax(-1), atol=0.035)  # 4.5 binomial std
     assert torch.allclose(td["action_log_prob"], head.bias.log_softmax(-1)[td["action"]], atol=1e-5)
+
+
+def test_a_run_resumes_from_its_checkpoint(tmp_path):
+    cfg = tiny(tmp_path, variant="a2c", logger={"checkpoint": True})
+    first = train_atari(cfg)
+    assert first["frames"] == 256 and (tmp_path / "checkpoint").exists()
+    longer = tiny(tmp_path, variant="a2c", total_frames=512, resume=True, logger={"checkpoint": True})
+    s = train_atari(longer)
+    assert s["frames"] == 512 and s["resumed_from_frames"] == 256
+    frames = [int(line.split(",")[0]) for line in (tmp_path / "metrics.csv").read_text().splitlines()[1:]]
+    assert frames == sorted(set(frames)) and frames[-1] == 512 and 256 in frames
+    with pytest.raises(ValueError, match=r"other settings for \['seed'\]"):
+        train_atari(tiny(tmp_path, variant="a2c", seed=3, total_frames=768, resume=True, logger={"checkpoint": True}))

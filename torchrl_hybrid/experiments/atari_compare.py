@@ -3,8 +3,9 @@ and a summary table per game.
 
 ``recipes/atari_compare.py`` is the command line. Each run is an ordinary
 :func:`~torchrl_hybrid.trainers.atari.train_atari` run in ``<out_dir>/<game>/<variant>_s<seed>``;
-a run whose ``summary.json`` exists is not run again, so a sweep interrupted at
-the end of a session picks up where it stopped (at run granularity).
+a run whose ``summary.json`` exists is not run again, and an unfinished one goes
+on from its last checkpoint (every tenth of its frames), so a sweep interrupted at
+the end of a session picks up where it stopped.
 """
 from __future__ import annotations
 
@@ -94,8 +95,9 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                     continue
                 d = _merge({"threads": threads, "env": {"num_threads": threads},
                             "logger": {"progress_bar": cfg.workers == 1}}, cfg.base)
+                # resume: a run interrupted mid-way goes on from its last checkpoint
                 d = _merge(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
-                               "out_dir": str(out), "env": {"game": game},
+                               "out_dir": str(out), "env": {"game": game}, "resume": True,
                                "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
                 jobs.append((d, f"{game}/{variant}_s{seed}"))
     print(f"{len(jobs)} run(s) to do in {cfg.out_dir}", flush=True)

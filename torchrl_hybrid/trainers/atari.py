@@ -108,6 +108,7 @@ class AtariConfig:
     out_dir: str = "outputs/atari"
     threads: int = 2
     init: str = "orthogonal"
+    resume: bool = False
     env: AtariEnvConfig = field(default_factory=AtariEnvConfig)
     demo: AtariDemoConfig = field(default_factory=AtariDemoConfig)
     loss: AtariLossConfig = field(default_factory=AtariLossConfig)
@@ -173,6 +174,7 @@ class AtariRun:
     loss: Any
     metrics: MetricsHook
     out: Path
+    resumed_from: int = 0
 
 
 def build_atari(cfg: AtariConfig) -> AtariRun:
@@ -247,7 +249,36 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
     metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator,
                           pbar_keys=("return_mean",), return_key=("next", "episode_score"))
     metrics.register(trainer)
-    return AtariRun(cfg, trainer, env, actor, critic, encoder, inverse_model, collection_policy, loss, metrics, out)
+    resumed = _maybe_resume(cfg, trainer, out)
+    (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=2))
+    return AtariRun(cfg, trainer, env, actor, critic, encoder, inverse_model, collection_policy, loss, metrics, out,
+                    resumed)
+
+
+# a checkpoint is resumed only by a run that agrees on these (total_frames may grow)
+_RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "init", "env", "demo", "loss", "optim")
+
+
+def _maybe_resume(cfg: AtariConfig, trainer, out: Path) -> int:
+    """Loads ``out/checkpoint`` into ``trainer`` when ``cfg.resume``; returns the
+    game frames it had collected (0 when starting afresh)."""
+    ckpt = out / "checkpoint"
+    if not cfg.resume:
+        return 0
+    if not ckpt.exists():
+        print(f"resume: no checkpoint in {out}; starting from scratch", file=sys.stderr)
+        return 0
+    saved_path = out / "config.json"
+    if saved_path.exists():
+        saved = json.loads(saved_path.read_text())
+        now = dataclasses.asdict(cfg)
+        diff = [k for k in _RESUME_KEYS if saved.get(k) != now.get(k)]
+        if diff:
+            raise ValueError(f"resume: the checkpoint in {out} was written with other settings for {diff} "
+                             f"(see {saved_path}); use another out_dir or the same settings")
+    trainer.load_from_file(ckpt)
+    print(f"resume: continuing from {trainer.collected_frames:,} frames ({ckpt})", file=sys.stderr)
+    return int(trainer.collected_frames)
 
 
 def train_atari(cfg: AtariConfig) -> dict[str, Any]:
@@ -264,8 +295,9 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
         "game": cfg.env.game, "variant": cfg.variant, "seed": cfg.seed, "frames": int(trainer.collected_frames),
         "final_return": finished[-1] if finished else None,
         "idm_accuracy": metrics.rows[-1].get("idm_accuracy") if metrics.rows else None,
-        "train_time_s": round(train_time, 2),
-        "frames_per_s": round(trainer.collected_frames / train_time, 1),
+        "resumed_from_frames": run.resumed_from,
+        "train_time_s": round(train_time, 2),  # this piece only, when resumed
+        "frames_per_s": round((trainer.collected_frames - run.resumed_from) / train_time, 1),
         "config": dataclasses.asdict(cfg),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 import math
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Callable
 
@@ -213,10 +214,32 @@ class MetricsHook(TrainerHookBase):
         return {**shown, "log_pbar": True} if shown else None
 
     def state_dict(self) -> dict[str, Any]:
-        return {"next": self._next}
+        return {"next": self._next, "rows": len(self.rows), "elapsed": time.perf_counter() - self._t0}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Resumes the curve: keeps the CSV's first ``rows`` rows (those written
+        before the checkpoint) and appends after them; ``time_s`` goes on counting."""
         self._next = state_dict["next"]
+        self._t0 = time.perf_counter() - float(state_dict.get("elapsed", 0.0))
+        n = int(state_dict.get("rows", 0))
+        rows, fieldnames = [], None
+        if self.csv_path.exists():
+            with self.csv_path.open(newline="") as f:
+                reader = csv.DictReader(f)
+                fieldnames = reader.fieldnames
+                for r in reader:
+                    rows.append({k: (int(v) if k in ("frames", "episodes") else float(v)) for k, v in r.items()
+                                 if v not in ("", None)})
+        if len(rows) < n:
+            warnings.warn(f"{self.csv_path} holds {len(rows)} rows but the checkpoint was taken after {n}; "
+                          "the resumed curve misses the rest", stacklevel=2)
+        self.rows = rows[:n]
+        self._fieldnames = fieldnames if self.rows else None
+        if self.rows:  # drop rows logged after the checkpoint: they will be logged again
+            with self.csv_path.open("w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=fieldnames, extrasaction="ignore", restval="")
+                writer.writeheader()
+                writer.writerows(self.rows)
 
     def register(self, trainer: Trainer, name: str = "metrics") -> None:
         self._trainer = trainer
