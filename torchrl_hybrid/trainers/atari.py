@@ -75,7 +75,7 @@ class AtariLossConfig:
     critic_coeff: float = 0.5
     entropy_coeff: float = 0.01
     idm_action_coeff: float = 1.0
-    idm_embedding_coeff: float = 0.1
+    idm_embedding_coeff: float = 0.0  # see recipes/config/atari.yaml
     bc_coeff: float = 1.0
     bc_start_frames: int = 100_000
 
