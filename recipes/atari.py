@@ -27,7 +27,9 @@ def run(cfg: DictConfig, **overrides) -> None:
         sys.exit(2)
     print(f"\n{summary['game']} {summary['variant']} seed {summary['seed']}: last mean episode score "
           f"{summary['final_return']}, {summary['frames']} frames at {summary['frames_per_s']:.0f} frames/s"
-          f"\nplot: {raw['out_dir']}/learning_curve.png   curve: {raw['out_dir']}/metrics.csv")
+          + (f"\nevaluation: mean score {summary['eval_return']:.1f} over {summary['evaluation']['episodes']} episodes"
+             if summary.get("eval_return") is not None else "")
+          + f"\nplot: {raw['out_dir']}/learning_curve.png   curve: {raw['out_dir']}/metrics.csv")
 
 
 @hydra.main(config_path="config", config_name="atari", version_base=None)

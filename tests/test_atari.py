@@ -170,11 +170,20 @@ def test_demo_mismatches_are_refused(pong_demos, tmp_path):
 
 def test_atari_recipes_command_line(tmp_path):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    common = ["env.num_envs=2", "env.num_threads=1", "loss.n_steps=4", "total_frames=128", "logger.progress_bar=false",
+    common = ["env.num_envs=2", "env.num_threads=1", "env.max_episode_frames=400", "loss.n_steps=4", "total_frames=128",
+              "logger.progress_bar=false",
               "logger.checkpoint=false", "logger.log_every_frames=64"]
-    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_expert.py"), f"out_dir={tmp_path}/e", *common],
-                       capture_output=True, text=True, env=env, timeout=300)
-    assert r.returncode == 0, r.stderr[-2000:]
+    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_expert.py"), f"out_dir={tmp_path}/e",
+                        "logger.eval_episodes=2", *common], capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0 and "evaluation: mean score" in r.stdout, r.stderr[-2000:]
+    summary = json.loads((tmp_path / "e" / "summary.json").read_text())
+    assert summary["evaluation"]["episodes"] == 2 and len(summary["evaluation"]["scores"]) == 2
+    assert torch.load(tmp_path / "e" / "model.pt", weights_only=False)["evaluation"] == summary["evaluation"]
+    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_eval.py"), f"checkpoint={tmp_path}/e/model.pt",
+                        "episodes=1", "num_envs=1", "progress=false"], capture_output=True, text=True, env=env,
+                       timeout=300)
+    assert r.returncode == 0 and "over 1 episodes" in r.stdout, r.stderr[-2000:]
+    assert json.loads((tmp_path / "e" / "eval.json").read_text())["episodes"] == 1
     r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_demos.py"), f"expert={tmp_path}/e/model.pt",
                         f"out={tmp_path}/d", "num_trajectories=2", "num_envs=2", "max_steps=8", "progress=false"],
                        capture_output=True, text=True, env=env, timeout=300)

@@ -45,7 +45,8 @@ from torchrl_hybrid.trainers.hybrid import (
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
-__all__ = ["AtariConfig", "AtariRun", "atari_config", "build_atari", "train_atari", "record_demos", "load_expert"]
+__all__ = ["AtariConfig", "AtariRun", "atari_config", "build_atari", "train_atari", "evaluate_atari", "record_demos",
+           "load_expert"]
 
 ATARI_VARIANTS = ("hybrid_dual", "hybrid_mlp", "bc_dual", "a2c")
 
@@ -93,6 +94,7 @@ class AtariLoggerConfig:
     backend: str = "csv"
     log_every_frames: int = 40_000
     accuracy_pairs: int = 512
+    eval_episodes: int = 0  # episodes played by the final policy (sampling); stored in summary.json and model.pt
     progress_bar: bool = True
     checkpoint: bool = True
 
@@ -290,11 +292,18 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
     t0 = time.perf_counter()
     trainer.train()
     train_time = time.perf_counter() - t0
+    evaluation = None
+    if cfg.logger.eval_episodes > 0:
+        evaluation = evaluate_atari(actor, cfg.env.game, base.preprocessing, episodes=cfg.logger.eval_episodes,
+                                    num_envs=min(cfg.env.num_envs, cfg.logger.eval_episodes), seed=cfg.seed + 10_000,
+                                    num_threads=cfg.env.num_threads, progress=cfg.logger.progress_bar)
     finished = [r["return_mean"] for r in metrics.rows if r["episodes"]]
     summary = {
         "game": cfg.env.game, "variant": cfg.variant, "seed": cfg.seed, "frames": int(trainer.collected_frames),
         "final_return": finished[-1] if finished else None,
         "idm_accuracy": metrics.rows[-1].get("idm_accuracy") if metrics.rows else None,
+        "eval_return": None if evaluation is None else evaluation["mean"],
+        "evaluation": evaluation,
         "resumed_from_frames": run.resumed_from,
         "train_time_s": round(train_time, 2),  # this piece only, when resumed
         "frames_per_s": round((trainer.collected_frames - run.resumed_from) / train_time, 1),
@@ -304,10 +313,46 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
     torch.save({"actor": actor.state_dict(), "critic": critic.state_dict(),
                 "inverse_model": None if inverse_model is None else inverse_model.state_dict(),
                 "n_actions": base.n_actions, "preprocessing": base.preprocessing,
-                "config": dataclasses.asdict(cfg)}, out / "model.pt")
+                "config": dataclasses.asdict(cfg), "evaluation": evaluation}, out / "model.pt")
     plot_learning_curve(metrics.rows, out / "learning_curve.png", title=f"{cfg.env.game}, {cfg.variant}, seed {cfg.seed}")
     env.close()
     return summary
+
+
+@torch.no_grad()
+def evaluate_atari(
+    actor, game: str, preprocessing: dict, *, episodes: int = 16, num_envs: int = 16, seed: int = 0,
+    deterministic: bool = False, num_threads: int = 2, max_steps: int | None = None, progress: bool = False,
+) -> dict[str, Any]:
+    """Plays ``episodes`` whole episodes (all lives) with ``actor`` and returns the
+    raw game scores: ``{"mean", "std", "scores", "episodes", "deterministic"}``.
+    ``max_steps`` (agent steps per env) stops early; unfinished episodes are not counted."""
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    env = AtariEnv(game, num_envs, seed=seed, num_threads=num_threads, noop_max=preprocessing["noop_max"],
+                   max_episode_frames=preprocessing["max_episode_frames"])
+    td = env.reset()
+    running = torch.zeros(num_envs)
+    scores: list[float] = []
+    etype = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    bar = tqdm(total=episodes, desc=f"{game} evaluation", disable=not progress)
+    steps = 0
+    while len(scores) < episodes and (max_steps is None or steps < max_steps):
+        with set_exploration_type(etype):
+            td = actor(td)
+        td, root = env.step_and_maybe_reset(td)
+        running += td["next", "score"].reshape(num_envs)
+        for i in torch.nonzero(td["next", "done"].reshape(num_envs)).flatten().tolist():
+            if len(scores) < episodes:
+                scores.append(float(running[i]))
+                bar.update(1)
+            running[i] = 0.0
+        td, steps = root, steps + 1
+    bar.close()
+    env.close()
+    t = torch.tensor(scores)
+    return {"mean": float(t.mean()) if scores else None, "std": float(t.std()) if len(scores) > 1 else None,
+            "scores": scores, "episodes": len(scores), "deterministic": deterministic}
 
 
 def load_expert(path: str | Path):
