@@ -47,7 +47,7 @@ def train(args: tuple[str, str, float, int, int]) -> tuple[str, list[tuple[int, 
         torch.nn.utils.clip_grad_norm_(loss.parameters(), 0.5)
         opt.step()
         opt.zero_grad()
-        li.append(float(out["loss_inverse"]))
+        li.append(float(out["loss_inverse"].detach()))
         with torch.no_grad():
             logits = loss.inverse_model.action_logits(batch["observation"], batch["next", "observation"])
             acc.append(float((logits.argmax(-1) == batch["action"]).float().mean()))

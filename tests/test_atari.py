@@ -335,7 +335,7 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     for f in ("curves.csv", "summary.csv", "comparison.png"):
         assert (tmp_path / "Pong" / f).stat().st_size > 0
     rows = (tmp_path / "Pong" / "curves.csv").read_text().splitlines()
-    assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy" and len(rows) == 1 + 2 * 3  # 3 logged points a run
+    assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy,entropy,loss_bc" and len(rows) == 1 + 2 * 3  # 3 logged points a run
     capsys.readouterr()
     run_compare(cfg)  # finished runs are not run again
     assert "0 run(s) to do" in capsys.readouterr().out

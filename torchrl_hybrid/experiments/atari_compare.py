@@ -148,7 +148,8 @@ def _score_curve(rows: list[dict], frames: np.ndarray, window: int) -> np.ndarra
 
 def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]:
     """Per game: ``curves.csv`` (every logged point of every run), ``summary.csv``
-    and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin)."""
+    and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin;
+    the inverse model's accuracy on demo pairs; the policy's entropy)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -163,18 +164,19 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         gdir = root / game
         with open(gdir / "curves.csv", "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["variant", "seed", "frames", "episodes", "return_mean", "idm_accuracy"])
+            w.writerow(["variant", "seed", "frames", "episodes", "return_mean", "idm_accuracy", "entropy", "loss_bc"])
             for variant, rs in runs.items():
                 for r in rs:
                     for row in r["rows"]:
                         w.writerow([variant, r["seed"], int(row["frames"]), int(row.get("episodes", 0)),
-                                    row.get("return_mean", math.nan), row.get("idm_accuracy", "")])
+                                    row.get("return_mean", math.nan), row.get("idm_accuracy", ""),
+                                    row.get("entropy", ""), row.get("loss_bc", "")])
         # the logged frames of the longest run; the window shrinks for short runs
         longest = max((r["rows"] for rs in runs.values() for r in rs), key=len)
         grid = np.array([row["frames"] for row in longest])
         win = min(window, int(grid[-1]))
         grid = grid[grid >= win]
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+        fig, axes = plt.subplots(1, 3, figsize=(17, 4.2))
         table = []
         for ci, (variant, rs) in enumerate(runs.items()):
             curves = np.array([_score_curve(r["rows"], grid, win) for r in rs])
@@ -197,6 +199,10 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
                 "idm_accuracy": None if acc[0] is None else float(np.mean(acc)),
                 "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs])),
             })
+            for k, r in enumerate(rs):
+                pts = [(row["frames"], row["entropy"]) for row in r["rows"] if not math.isnan(row.get("entropy", math.nan))]
+                if pts:
+                    axes[2].plot(*zip(*pts), color=f"C{ci}", lw=1, label=variant if k == 0 else None)
             accs = [[(row["frames"], row["idm_accuracy"]) for row in r["rows"]
                      if not math.isnan(row.get("idm_accuracy", math.nan))] for r in rs]
             for k, pts in enumerate(accs):
@@ -214,6 +220,12 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         axes[1].grid(alpha=0.3)
         if axes[1].get_legend_handles_labels()[0]:
             axes[1].legend(loc="lower right")
+        axes[2].set_xlabel("game frames")
+        axes[2].set_ylabel("policy entropy (nats) on the agent's batch")
+        axes[2].set_title("policy entropy (BC collapse shows as ~0)")
+        axes[2].grid(alpha=0.3)
+        if axes[2].get_legend_handles_labels()[0]:
+            axes[2].legend(loc="center right")
         fig.tight_layout()
         fig.savefig(gdir / "comparison.png", dpi=110)
         plt.close(fig)
