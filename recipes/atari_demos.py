@@ -8,6 +8,7 @@ import sys
 
 import hydra
 from omegaconf import DictConfig
+from omegaconf.errors import MissingMandatoryValue
 
 from torchrl_hybrid.trainers.atari import record_demos
 
@@ -18,6 +19,9 @@ def main(cfg: DictConfig) -> None:
         meta = record_demos(cfg.expert, cfg.out, num_trajectories=cfg.num_trajectories, num_envs=cfg.num_envs,
                             seed=cfg.seed, deterministic=cfg.deterministic, max_steps=cfg.max_steps,
                             cut=cfg.cut, progress=cfg.progress)
+    except MissingMandatoryValue as err:
+        print(f"error: {err.full_key}=... is required (see recipes/config/atari_demos.yaml)", file=sys.stderr)
+        sys.exit(2)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
+from omegaconf.errors import MissingMandatoryValue
 
 from torchrl_hybrid.trainers.atari import evaluate_atari, load_expert
 
@@ -23,6 +24,9 @@ def main(cfg: DictConfig) -> None:
         game = ckpt["config"]["env"]["game"]
         result = evaluate_atari(actor, game, ckpt["preprocessing"], episodes=cfg.episodes, num_envs=cfg.num_envs,
                                 seed=cfg.seed, deterministic=cfg.deterministic, progress=cfg.progress)
+    except MissingMandatoryValue as err:
+        print(f"error: {err.full_key}=... is required (see recipes/config/atari_eval.yaml)", file=sys.stderr)
+        sys.exit(2)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

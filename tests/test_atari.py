@@ -385,3 +385,10 @@ def test_a_run_resumes_from_its_checkpoint(tmp_path):
     assert frames == sorted(set(frames)) and frames[-1] == 512 and 256 in frames
     with pytest.raises(ValueError, match=r"other settings for \['seed'\]"):
         train_atari(tiny(tmp_path, variant="a2c", seed=3, total_frames=768, resume=True, logger={"checkpoint": True}))
+
+
+def test_atari_recipes_name_missing_arguments():
+    for recipe, args, key in (("atari_eval.py", [], "checkpoint"), ("atari_demos.py", ["expert=x.pt"], "out")):
+        r = subprocess.run([sys.executable, str(ROOT / "recipes" / recipe), *args], capture_output=True, text=True,
+                           timeout=120)
+        assert r.returncode == 2 and f"error: {key}=... is required" in r.stderr, r.stderr[-1000:]
