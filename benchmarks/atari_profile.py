@@ -19,6 +19,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import torch
+from atari_throughput import bench_config, bench_demos  # benchmarks/ (the script's own folder)
 
 logging.getLogger("torchrl").setLevel(logging.WARNING)
 
@@ -34,14 +35,9 @@ def _timed(fn, timers, name):
 
 
 def profile_run(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int) -> dict:
-    from torchrl_hybrid.trainers.atari import atari_config, build_atari
+    from torchrl_hybrid.trainers.atari import build_atari
 
-    cfg = {"variant": variant, "total_frames": 4 * steps, "out_dir": str(out / variant), "threads": threads,
-           "env": {"game": game, "num_envs": 16, "num_threads": threads}, "loss": {"bc_start_frames": 0},
-           "logger": {"progress_bar": False, "checkpoint": False, "backend": "none", "log_every_frames": 10**9}}
-    if demos is not None:
-        cfg["demo"] = {"path": str(demos)}
-    run = build_atari(atari_config(cfg))
+    run = build_atari(bench_config(variant, game, steps, out, demos, threads))
     timers: dict[str, float] = defaultdict(float)
     base = run.env.base_env
     base._step = _timed(base._step, timers, "env: ale-py step + AtariEnv")
@@ -99,12 +95,17 @@ def floors(game: str, threads: int) -> dict:
     with torch.no_grad():
         fwd16 = bench(lambda: enc(x16), 100)
 
-    def train80():
-        enc.zero_grad()
-        enc(x80).sum().backward()
+    def train80(e):
+        def f():
+            e.zero_grad()
+            e(x80).sum().backward()
+        return f
 
+    plain = AtariEncoder(channels_last=False)
+    plain.reuse_features = False
     return {"ale-py alone, 5 steps of 16 envs": ale, "CNN no-grad forward of 16, x5": 5 * fwd16,
-            "CNN forward + backward of 80": bench(train80, 20)}
+            "CNN forward + backward of 80": bench(train80(enc), 20),
+            "  same, contiguous (not channels-last)": bench(train80(plain), 20)}
 
 
 def main() -> None:
@@ -113,17 +114,11 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=8000, help="agent steps per run (x4 game frames)")
     p.add_argument("--threads", type=int, default=2)
     a = p.parse_args()
-    from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari
-
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        train_atari(atari_config({"variant": "a2c", "total_frames": 320, "out_dir": str(tmp / "expert"),
-                                  "env": {"game": a.game, "num_envs": 16},
-                                  "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}))
-        record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=8, num_envs=8, max_steps=200,
-                     progress=False)
+        demos = bench_demos(a.game, tmp)
         runs = {"a2c": profile_run("a2c", a.game, a.steps, tmp, None, a.threads),
-                "hybrid_dual": profile_run("hybrid_dual", a.game, a.steps, tmp, tmp / "demos", a.threads)}
+                "hybrid_dual": profile_run("hybrid_dual", a.game, a.steps, tmp, demos, a.threads)}
     fl = floors(a.game, a.threads)
     print(f"\n{a.game}: milliseconds per batch of 80 agent steps (16 envs x 5), {a.steps:,} steps a run")
     keys = ["collection (rollout) in all", "env: ale-py step + AtariEnv", "policy: CNN + heads + sampling",

@@ -22,8 +22,9 @@ import torch
 logging.getLogger("torchrl").setLevel(logging.WARNING)
 
 
-def ours(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int) -> float:
-    from torchrl_hybrid.trainers.atari import atari_config, train_atari
+def bench_config(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int):
+    """The measured run: 16 envs, BC on from the start, no logging or checkpoints."""
+    from torchrl_hybrid.trainers.atari import atari_config
 
     cfg = {"variant": variant, "total_frames": 4 * steps, "out_dir": str(out / variant), "threads": threads,
            "env": {"game": game, "num_envs": 16, "num_threads": threads},
@@ -31,7 +32,26 @@ def ours(variant: str, game: str, steps: int, out: Path, demos: Path | None, thr
            "logger": {"progress_bar": False, "checkpoint": False, "backend": "none", "log_every_frames": 10**9}}
     if demos is not None:
         cfg["demo"] = {"path": str(demos)}
-    return train_atari(atari_config(cfg))["frames_per_s"] / 4  # game frames/s -> agent steps/s
+    return atari_config(cfg)
+
+
+def bench_demos(game: str, tmp: Path) -> Path:
+    """Demos for the hybrid's BC term from an untrained policy (the cost is what matters)."""
+    from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari
+
+    train_atari(atari_config({"variant": "a2c", "total_frames": 320, "out_dir": str(tmp / "expert"),
+                              "env": {"game": game, "num_envs": 16},
+                              "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}))
+    record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=8, num_envs=8, max_steps=200,
+                 progress=False)
+    return tmp / "demos"
+
+
+def ours(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int) -> float:
+    from torchrl_hybrid.trainers.atari import train_atari
+
+    cfg = bench_config(variant, game, steps, out, demos, threads)
+    return train_atari(cfg)["frames_per_s"] / 4  # game frames/s -> agent steps/s
 
 
 def sb3(game: str, steps: int, threads: int) -> float | None:
@@ -60,18 +80,11 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=16_000, help="agent steps per measurement (x4 game frames)")
     p.add_argument("--threads", type=int, default=2, help="torch threads (and ALE threads for ours)")
     a = p.parse_args()
-    from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari
-
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        # demos for the hybrid's BC term: an untrained policy's, the cost is what matters here
-        train_atari(atari_config({"variant": "a2c", "total_frames": 320, "out_dir": str(tmp / "expert"),
-                                  "env": {"game": a.game, "num_envs": 16},
-                                  "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}))
-        record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=8, num_envs=8, max_steps=200,
-                     progress=False)
+        demos = bench_demos(a.game, tmp)
         rows = [("ours: a2c", ours("a2c", a.game, a.steps, tmp, None, a.threads)),
-                ("ours: hybrid_dual", ours("hybrid_dual", a.game, a.steps, tmp, tmp / "demos", a.threads))]
+                ("ours: hybrid_dual", ours("hybrid_dual", a.game, a.steps, tmp, demos, a.threads))]
     base = sb3(a.game, a.steps, a.threads)
     if base is not None:
         rows.append(("Stable-Baselines3 A2C", base))

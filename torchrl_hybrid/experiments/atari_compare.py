@@ -146,6 +146,14 @@ def _score_curve(rows: list[dict], frames: np.ndarray, window: int) -> np.ndarra
     return out
 
 
+def _per_seed(ax, runs: list[dict], key: str, ci: int, variant: str) -> None:
+    """One thin line per seed of a logged column (rows where it is missing skipped)."""
+    for k, r in enumerate(runs):
+        pts = [(row["frames"], row[key]) for row in r["rows"] if not math.isnan(row.get(key, math.nan))]
+        if pts:
+            ax.plot(*zip(*pts), color=f"C{ci}", lw=1, label=variant if k == 0 else None)
+
+
 def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]:
     """Per game: ``curves.csv`` (every logged point of every run), ``summary.csv``
     and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin;
@@ -199,33 +207,20 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
                 "idm_accuracy": None if acc[0] is None else float(np.mean(acc)),
                 "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs])),
             })
-            for k, r in enumerate(rs):
-                pts = [(row["frames"], row["entropy"]) for row in r["rows"] if not math.isnan(row.get("entropy", math.nan))]
-                if pts:
-                    axes[2].plot(*zip(*pts), color=f"C{ci}", lw=1, label=variant if k == 0 else None)
-            accs = [[(row["frames"], row["idm_accuracy"]) for row in r["rows"]
-                     if not math.isnan(row.get("idm_accuracy", math.nan))] for r in rs]
-            for k, pts in enumerate(accs):
-                if pts:
-                    axes[1].plot(*zip(*pts), color=f"C{ci}", lw=1, label=variant if k == 0 else None)
-        axes[0].set_xlabel("game frames")
-        axes[0].set_ylabel(f"episode score (raw), mean over last {win // 1000}k frames")
-        axes[0].set_title(f"{game}: hybrid vs A2C")
-        axes[0].legend(loc="upper left")
-        axes[0].grid(alpha=0.3)
+            _per_seed(axes[1], rs, "idm_accuracy", ci, variant)
+            _per_seed(axes[2], rs, "entropy", ci, variant)
         axes[1].set_ylim(0, 1)
-        axes[1].set_xlabel("game frames")
-        axes[1].set_ylabel("inferred = true expert action")
-        axes[1].set_title("inverse-model accuracy on demo pairs")
-        axes[1].grid(alpha=0.3)
-        if axes[1].get_legend_handles_labels()[0]:
-            axes[1].legend(loc="lower right")
-        axes[2].set_xlabel("game frames")
-        axes[2].set_ylabel("policy entropy (nats) on the agent's batch")
-        axes[2].set_title("policy entropy (BC collapse shows as ~0)")
-        axes[2].grid(alpha=0.3)
-        if axes[2].get_legend_handles_labels()[0]:
-            axes[2].legend(loc="center right")
+        for ax, ylabel, title, loc in (
+            (axes[0], f"episode score (raw), mean over last {win // 1000}k frames", f"{game}: hybrid vs A2C",
+             "upper left"),
+            (axes[1], "inferred = true expert action", "inverse-model accuracy on demo pairs", "lower right"),
+            (axes[2], "policy entropy (nats) on the agent's batch", "policy entropy (BC collapse shows as ~0)",
+             "center right"),
+        ):
+            ax.set(xlabel="game frames", ylabel=ylabel, title=title)
+            ax.grid(alpha=0.3)
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(loc=loc)
         fig.tight_layout()
         fig.savefig(gdir / "comparison.png", dpi=110)
         plt.close(fig)

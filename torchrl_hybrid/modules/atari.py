@@ -19,7 +19,7 @@ class AtariEncoder(nn.Module):
 
     Note the third convolution has 32 filters (the paper's text), not the usual 64.
     With ``channels_last`` (default) the convolutions run in channels-last memory
-    format, which makes their CPU backward pass about a third faster.
+    format, which makes their CPU backward pass faster.
     Takes uint8 frame stacks ``[*B, stack, 84, 84]`` (any leading dims) and scales
     them to [0, 1]. ``out_features`` (512) is what the inverse model's ``W_s`` reads.
 
@@ -43,8 +43,8 @@ class AtariEncoder(nn.Module):
         self.in_shape = (stack, size, size)
         self._cache = None
         self.reuse_features = True
-        # oneDNN's convolutions run their backward pass about a third faster on
-        # channels-last tensors on CPU (fwd+bwd of 80 frame stacks: 23.5 -> 16 ms here)
+        # oneDNN's convolutions run their CPU backward pass faster on channels-last
+        # tensors (benchmarks/atari_profile.py prints both layouts' forward + backward time)
         self.channels_last = channels_last
         if channels_last:
             self.convs.to(memory_format=torch.channels_last)
