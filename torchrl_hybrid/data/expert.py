@@ -197,6 +197,7 @@ def make_expert_buffer(
     sampler: Sampler | None = None,
     batch_size: int | None = None,
     include_expert_actions: bool = False,
+    device: str | torch.device | None = None,
 ) -> ReplayBuffer:
     """A TorchRL replay buffer holding the expert pairs.
 
@@ -215,7 +216,7 @@ def make_expert_buffer(
     elif EXPERT_ACTION_KEY not in demos.keys():
         raise ValueError(f"include_expert_actions=True but the demos have no {EXPERT_ACTION_KEY!r} entry")
     rb = ReplayBuffer(
-        storage=LazyTensorStorage(demos.batch_size.numel()),
+        storage=LazyTensorStorage(demos.batch_size.numel(), device="cpu" if device is None else device),
         sampler=sampler if sampler is not None else RandomSampler(),
         batch_size=batch_size,
     )

@@ -48,6 +48,7 @@ class CurriculumSampler(Sampler):
         self.k0, self.frames_per_step, self.step_key = int(k0), int(frames_per_step), step_key
         self.frames = 0
         self._steps: torch.Tensor | None = None
+        self._eligible: tuple[int, torch.Tensor] | None = None
 
     @property
     def k(self) -> int:
@@ -67,15 +68,18 @@ class CurriculumSampler(Sampler):
         if len(storage) == 0:
             raise RuntimeError("CurriculumSampler: the expert buffer is empty")
         if self._steps is None or len(self._steps) != len(storage):
-            self._steps = _storage_entry(storage, self.step_key).reshape(-1)
-        eligible = torch.nonzero(self._steps < self.k).squeeze(-1)
+            self._steps, self._eligible = _storage_entry(storage, self.step_key).reshape(-1), None
+        k = self.k
+        if self._eligible is None or self._eligible[0] != k:  # K changes every few thousand frames
+            self._eligible = (k, torch.nonzero(self._steps < k).squeeze(-1))
+        eligible = self._eligible[1]
         if eligible.numel() == 0:
             raise RuntimeError(
                 f"CurriculumSampler: no expert pair has {self.step_key!r} < K={self.k}; "
                 "check that the demos carry step indices starting at 0."
             )
         pick = torch.randint(eligible.numel(), (batch_size,), generator=self._rng)
-        return eligible[pick], {"K": self.k}
+        return eligible[pick.to(eligible.device)], {"K": k}
 
     def _empty(self):
         self._steps = None
@@ -142,10 +146,10 @@ class VisitedStateSampler(Sampler):
         if self._index is None:
             self._build(storage)
         order, counts, offsets = self._index
-        v = self._visited
+        v = self._visited.to(counts.device)
         v = v[(v >= 0) & (v < self.n_states)]
         v = v[counts[v] > 0]
-        r = (torch.rand(v.shape, generator=self._rng) * counts[v]).long()
+        r = (torch.rand(v.shape, generator=self._rng).to(v.device) * counts[v]).long()
         return order[offsets[v] + r], {}
 
     def _empty(self):

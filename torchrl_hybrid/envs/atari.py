@@ -148,21 +148,48 @@ class AtariEnv(EnvBase):
             self._pending = None
         return TensorDict({"observation": self._obs.clone(), "lives": self._lives.clone(), **self._done_td(n)}, [n])
 
+    def send(self, action) -> None:
+        """Starts a step of every game with ``action`` (``[num_envs]`` ints) and returns
+        at once: ale-py steps the games on its worker threads until :meth:`recv`.
+        Actions outside ``[0, n_actions)`` are refused (ale-py would hang on them)."""
+        n = self.batch_size[0]
+        a = action.reshape(n).numpy() if isinstance(action, torch.Tensor) else np.asarray(action).reshape(n)
+        if a.dtype not in (np.int64, np.int32):
+            raise TypeError(f"{self.game}: actions must be integers, got dtype {a.dtype}")
+        lo, hi = int(a.min()), int(a.max())
+        if lo < 0 or hi >= self.n_actions:
+            raise ValueError(
+                f"{self.game} has {self.n_actions} actions (0..{self.n_actions - 1}), got action {hi if hi >= self.n_actions else lo}; "
+                "is the policy (or checkpoint) made for another game?"
+            )
+        self._env.send(a)
+
+    def recv(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+        """Waits for the step started by :meth:`send`. Returns numpy arrays
+        ``(obs, score, terminated, truncated, final_obs, lives)``: ``obs`` is the
+        new episode's first frame stack where an episode ended, ``final_obs`` (or
+        ``None`` when no episode ended) the old episode's last one for every env,
+        ``score`` the raw game reward."""
+        obs, reward, term, trunc, info = self._env.recv()
+        trunc = trunc & ~term
+        final = info["final_obs"] if (term | trunc).any() else None
+        return obs, reward, term, trunc, final, info["lives"]
+
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         n = self.batch_size[0]
-        action = tensordict.get("action").reshape(n).numpy()
-        obs, reward, term, trunc, info = self._env.step(action)
+        self.send(tensordict.get("action"))
+        obs, reward, term, trunc, final, lives = self.recv()
         obs_t = torch.from_numpy(np.ascontiguousarray(obs))
         term_t = torch.as_tensor(term, dtype=torch.bool)
-        trunc_t = torch.as_tensor(trunc, dtype=torch.bool) & ~term_t
+        trunc_t = torch.as_tensor(trunc, dtype=torch.bool)
         done = term_t | trunc_t
         next_obs = obs_t
-        if done.any():
-            final = torch.from_numpy(np.ascontiguousarray(info["final_obs"]))
+        if final is not None:
+            final = torch.from_numpy(np.ascontiguousarray(final))
             next_obs = torch.where(done.view(n, 1, 1, 1), final, obs_t)
             self._pending, self._pending_mask = obs_t, done
         self._obs = next_obs
-        self._lives = torch.as_tensor(info["lives"], dtype=torch.int64).view(n, 1)
+        self._lives = torch.as_tensor(lives, dtype=torch.int64).view(n, 1)
         score = torch.as_tensor(reward, dtype=torch.float32).view(n, 1)
         return TensorDict(
             {
@@ -176,6 +203,14 @@ class AtariEnv(EnvBase):
             },
             [n],
         )
+
+    def reset_all(self, seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Starts every game anew (seeded with ``seed``, else the env's seed) and
+        returns numpy ``(obs, lives)``; for collectors that drive :meth:`send` /
+        :meth:`recv` themselves."""
+        obs, info = self._env.reset(seed=self._seed if seed is None else int(seed))
+        self._started, self._pending = True, None
+        return obs, info["lives"]
 
     def _set_seed(self, seed: int | None) -> None:
         self._seed = 0 if seed is None else int(seed)

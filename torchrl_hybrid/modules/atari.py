@@ -84,9 +84,26 @@ class AtariEncoder(nn.Module):
             if out is not None:
                 return out  # not cached: the cache keeps the input the rows were matched against
         out = self._forward(frames)
-        if frames.is_contiguous():
+        # a no-grad call (e.g. the critic on a few next observations before the loss)
+        # does not evict features kept for the current update's backward pass
+        keep = not grad and valid and cached[4] and cached[1][2:] == key[2:]
+        if frames.is_contiguous() and not keep:
             self._cache = (weakref.ref(frames), key, out, frames._version, grad)
         return out
+
+    def remember(self, frames: torch.Tensor, features: torch.Tensor) -> None:
+        """Registers ``features`` (``[*frames.shape[:-3], out_features]``, computed by
+        this encoder with the current weights and autograd on, e.g. step by step
+        during collection) as the output for ``frames``: the next grad-mode call on
+        ``frames`` returns them, with their graph, instead of running the CNN again.
+        Invalidated as usual when the weights or ``frames`` change."""
+        if features.shape != (*frames.shape[:-3], self.out_features):
+            raise ValueError(f"features of shape {tuple(features.shape)} do not match frames {tuple(frames.shape)}")
+        if not frames.is_contiguous():
+            raise ValueError("remember() needs contiguous frames")
+        w = self.convs[0].weight
+        key = (frames.data_ptr(), frames.numel(), id(w), w._version)
+        self._cache = (weakref.ref(frames), key, features, frames._version, features.requires_grad)
 
     def _shifted(self, frames: torch.Tensor, src: torch.Tensor, src_out: torch.Tensor) -> torch.Tensor | None:
         x = frames.reshape(-1, math.prod(self.in_shape))
@@ -149,7 +166,10 @@ class AtariCollectionPolicy(nn.Module):
         self.encoder, self.policy_head, self.value_head = encoder, policy_head, value_head
 
     def forward(self, observation: torch.Tensor):
-        feats = self.encoder(observation)
+        return self.heads(self.encoder(observation))
+
+    def heads(self, feats: torch.Tensor):
+        """``(action, action_log_prob, state_value)`` from encoder features."""
         logits = self.policy_head(feats)
         log_p = logits.log_softmax(-1)
         if interaction_type() == InteractionType.RANDOM:

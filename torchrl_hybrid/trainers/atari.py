@@ -24,6 +24,7 @@ from torchrl.envs import RewardSum, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.record.loggers import get_logger
 
+from torchrl_hybrid.collectors import AtariCollector
 from torchrl_hybrid.data import (
     EXPERT_ACTION_KEY,
     CurriculumSampler,
@@ -43,6 +44,7 @@ from torchrl_hybrid.trainers.hybrid import (
     param_groups,
 )
 from torchrl_hybrid.utils.config import dataclass_from_dict
+from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["AtariConfig", "AtariRun", "atari_config", "build_atari", "train_atari", "evaluate_atari", "record_demos",
@@ -58,6 +60,13 @@ class AtariEnvConfig:
     num_threads: int = 2
     noop_max: int = 30
     max_episode_frames: int = 108_000
+
+
+@dataclass
+class AtariCollectorConfig:
+    backend: str = "atari"  # atari (AtariCollector) | torchrl (TorchRL's generic Collector, the reference path)
+    env_groups: int = 1     # atari backend: groups of games stepped as a pipeline (1 = one vector env)
+    keep_features: bool = True  # atari backend: the learner reuses the encoder pass made during collection
 
 
 @dataclass
@@ -111,7 +120,9 @@ class AtariConfig:
     threads: int = 2
     init: str = "orthogonal"
     resume: bool = False
+    device: str = "auto"
     env: AtariEnvConfig = field(default_factory=AtariEnvConfig)
+    collector: AtariCollectorConfig = field(default_factory=AtariCollectorConfig)
     demo: AtariDemoConfig = field(default_factory=AtariDemoConfig)
     loss: AtariLossConfig = field(default_factory=AtariLossConfig)
     optim: AtariOptimConfig = field(default_factory=AtariOptimConfig)
@@ -132,6 +143,14 @@ class AtariConfig:
                 f"variant {self.variant!r} needs expert demos: record them with recipes/atari_demos.py "
                 "and pass demo.path=<folder>"
             )
+        if self.collector.backend not in ("atari", "torchrl"):
+            raise ValueError(f"collector.backend={self.collector.backend!r}: choose atari or torchrl")
+        if self.collector.env_groups < 1 or self.env.num_envs % self.collector.env_groups:
+            raise ValueError(f"collector.env_groups={self.collector.env_groups} must divide "
+                             f"env.num_envs={self.env.num_envs}")
+        if self.collector.env_groups > 1 and self.collector.backend != "atari":
+            raise ValueError("collector.env_groups > 1 needs collector.backend=atari")
+        resolve_device(self.device)
         if self.total_frames < 4 * self.frames_per_batch:
             raise ValueError(f"total_frames={self.total_frames} (game frames) is less than one batch "
                              f"({self.frames_per_batch} agent steps = {4 * self.frames_per_batch} frames)")
@@ -176,6 +195,7 @@ class AtariRun:
     loss: Any
     metrics: MetricsHook
     out: Path
+    device: torch.device
     resumed_from: int = 0
 
 
@@ -188,12 +208,20 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
+    device = resolve_device(cfg.device)
     variant = get_variant(cfg.variant)
     out = Path(cfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
 
-    env = _make_env(cfg)
-    base = env.base_env
+    # the games run on the CPU; networks, learner and demos live on `device`
+    if cfg.collector.backend == "atari":
+        envs = AtariCollector.make_envs(cfg.env.game, cfg.env.num_envs, groups=cfg.collector.env_groups,
+                                        seed=cfg.seed, num_threads=cfg.env.num_threads, noop_max=cfg.env.noop_max,
+                                        max_episode_frames=cfg.env.max_episode_frames)
+        env = base = envs[0]
+    else:
+        env = _make_env(cfg)
+        base = env.base_env
     demos = None
     if variant.bc is not None:
         demos, meta = load_demos(cfg.demo.path, obs_shape=tuple(base.observation_spec["observation"].shape[1:]),
@@ -212,13 +240,20 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
         entropy_coeff=lc.entropy_coeff, idm_action_coeff=lc.idm_action_coeff,
         idm_embedding_coeff=lc.idm_embedding_coeff, bc_coeff=lc.bc_coeff,
         value_estimator_kwargs={"skip_existing": True},  # values come from NextStateValueHook
-    )
+    ).to(device)  # moves the shared encoder, heads and inverse model with it
     optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
     # total_frames, bc_start_frames and the curriculum count game frames, as the paper
     # does (4 per agent step); the collector counts agent steps
     skip = base.preprocessing["frameskip"]
-    collector = Collector(env, collection_policy, frames_per_batch=cfg.frames_per_batch,
-                          total_frames=-(-cfg.total_frames // skip), auto_register_policy_transforms=False)
+    agent_steps = -(-cfg.total_frames // skip)
+    if cfg.collector.backend == "atari":
+        collector = AtariCollector(envs, collection_policy, frames_per_batch=cfg.frames_per_batch,
+                                   total_frames=agent_steps, device=device,
+                                   keep_features=cfg.collector.keep_features)
+    else:
+        collector = Collector(env, collection_policy, frames_per_batch=cfg.frames_per_batch, total_frames=agent_steps,
+                              env_device="cpu", policy_device=device, storing_device=device,
+                              auto_register_policy_transforms=False)
     logger = None
     if cfg.logger.backend != "none":
         logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"),
@@ -236,12 +271,13 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
         sampler = (CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
                    if cfg.demo.curriculum else None)
         attach_demonstrations(trainer, loss, demos, sampler=sampler, batch_size=cfg.demo.batch_size,
-                              bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames)
+                              bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames, device=device)
 
     acc_pairs = None
     if inverse_model is not None and demos is not None and EXPERT_ACTION_KEY in demos.keys():
         n = min(cfg.logger.accuracy_pairs, demos.batch_size.numel())
         acc_pairs = demos[torch.randperm(demos.batch_size.numel(), generator=torch.Generator().manual_seed(0))[:n]]
+        acc_pairs = acc_pairs.to(device)
 
     def evaluator():
         if acc_pairs is None:
@@ -254,7 +290,7 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
     resumed = _maybe_resume(cfg, trainer, out)
     (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=2))
     return AtariRun(cfg, trainer, env, actor, critic, encoder, inverse_model, collection_policy, loss, metrics, out,
-                    resumed)
+                    device, resumed)
 
 
 # a checkpoint is resumed only by a run that agrees on these (total_frames may grow)
@@ -287,7 +323,8 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
     """Trains one agent (``hybrid_dual``, ``hybrid_mlp``, ``bc_dual`` or ``a2c``) and
     writes ``metrics.csv``, ``summary.json``, ``learning_curve.png``, ``model.pt``."""
     run = build_atari(cfg)
-    trainer, metrics, out, env, base = run.trainer, run.metrics, run.out, run.env, run.env.base_env
+    trainer, metrics, out, env = run.trainer, run.metrics, run.out, run.env
+    base = env.base_env if isinstance(env, TransformedEnv) else env
     actor, critic, inverse_model = run.actor, run.critic, run.inverse_model
     t0 = time.perf_counter()
     trainer.train()
@@ -296,7 +333,8 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
     if cfg.logger.eval_episodes > 0:
         evaluation = evaluate_atari(actor, cfg.env.game, base.preprocessing, episodes=cfg.logger.eval_episodes,
                                     num_envs=min(cfg.env.num_envs, cfg.logger.eval_episodes), seed=cfg.seed + 10_000,
-                                    num_threads=cfg.env.num_threads, progress=cfg.logger.progress_bar)
+                                    num_threads=cfg.env.num_threads, progress=cfg.logger.progress_bar,
+                                    device=run.device)
     finished = [r["return_mean"] for r in metrics.rows if r["episodes"]]
     summary = {
         "game": cfg.env.game, "variant": cfg.variant, "seed": cfg.seed, "frames": int(trainer.collected_frames),
@@ -315,7 +353,7 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
                 "n_actions": base.n_actions, "preprocessing": base.preprocessing,
                 "config": dataclasses.asdict(cfg), "evaluation": evaluation}, out / "model.pt")
     plot_learning_curve(metrics.rows, out / "learning_curve.png", title=f"{cfg.env.game}, {cfg.variant}, seed {cfg.seed}")
-    env.close()
+    trainer.collector.shutdown()
     return summary
 
 
@@ -323,12 +361,15 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
 def evaluate_atari(
     actor, game: str, preprocessing: dict, *, episodes: int = 16, num_envs: int = 16, seed: int = 0,
     deterministic: bool = False, num_threads: int = 2, max_steps: int | None = None, progress: bool = False,
+    device: str | torch.device | None = None,
 ) -> dict[str, Any]:
     """Plays ``episodes`` whole episodes (all lives) with ``actor`` and returns the
     raw game scores: ``{"mean", "std", "scores", "episodes", "deterministic"}``.
-    ``max_steps`` (agent steps per env) stops early; unfinished episodes are not counted."""
+    ``max_steps`` (agent steps per env) stops early; unfinished episodes are not counted.
+    The actor runs on ``device`` (default: where its parameters are), the games on the CPU."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
+    device = _module_device(actor) if device is None else resolve_device(device)
     env = AtariEnv(game, num_envs, seed=seed, num_threads=num_threads, noop_max=preprocessing["noop_max"],
                    max_episode_frames=preprocessing["max_episode_frames"])
     td = env.reset()
@@ -339,7 +380,7 @@ def evaluate_atari(
     steps = 0
     while len(scores) < episodes and (max_steps is None or steps < max_steps):
         with set_exploration_type(etype):
-            td = actor(td)
+            td = actor(td.to(device)).to("cpu")
         td, root = env.step_and_maybe_reset(td)
         running += td["next", "score"].reshape(num_envs)
         for i in torch.nonzero(td["next", "done"].reshape(num_envs)).flatten().tolist():
@@ -355,15 +396,22 @@ def evaluate_atari(
             "scores": scores, "episodes": len(scores), "deterministic": deterministic}
 
 
-def load_expert(path: str | Path):
-    """The actor of a checkpoint written by :func:`train_atari` (``model.pt``) and its metadata."""
+def _module_device(module) -> torch.device:
+    p = next(iter(module.parameters()), None)
+    return p.device if p is not None else torch.device("cpu")
+
+
+def load_expert(path: str | Path, device: str | torch.device = "cpu"):
+    """The actor of a checkpoint written by :func:`train_atari` (``model.pt``), on
+    ``device`` whatever device it was saved from, and the checkpoint's metadata."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"expert checkpoint {str(path)!r} does not exist; train one with recipes/atari_expert.py")
-    ckpt = torch.load(path, weights_only=False)
+    device = resolve_device(device)
+    ckpt = torch.load(path, weights_only=False, map_location="cpu")
     actor = make_atari_actor_critic(ckpt["n_actions"])[0]
     actor.load_state_dict(ckpt["actor"])
-    return actor, ckpt
+    return actor.to(device), ckpt
 
 
 @torch.no_grad()
@@ -378,6 +426,7 @@ def record_demos(
     max_steps: int = 27_000,
     cut: str = "auto",
     progress: bool = True,
+    device: str | torch.device = "auto",
 ) -> dict[str, Any]:
     """Plays the expert and saves ``num_trajectories`` state-only trajectories as a
     memory-mapped dataset of expert pairs with metadata. True actions go only under
@@ -394,7 +443,8 @@ def record_demos(
         raise ValueError(f"cut={cut!r}: choose one of 'auto', 'life', 'point', 'episode'")
     if num_trajectories < 1 or max_steps < 1:
         raise ValueError(f"num_trajectories and max_steps must be >= 1, got {num_trajectories}, {max_steps}")
-    actor, ckpt = load_expert(expert_path)
+    actor, ckpt = load_expert(expert_path, device)
+    device = _module_device(actor)
     game = ckpt["config"]["env"]["game"]
     pre = ckpt["preprocessing"]
     env = AtariEnv(game, num_envs, seed=seed, num_threads=ckpt["config"]["env"]["num_threads"],
@@ -412,7 +462,7 @@ def record_demos(
     bar = tqdm(total=num_trajectories, desc=f"{game} demos", disable=not progress)
     while len(trajs) < num_trajectories:
         with set_exploration_type(etype):
-            td = actor(td)
+            td = actor(td.to(device)).to("cpu")
         td, root = env.step_and_maybe_reset(td)
         nxt = td["next"]
         done = nxt["done"].squeeze(-1)

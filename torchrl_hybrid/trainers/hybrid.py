@@ -213,15 +213,17 @@ def attach_demonstrations(
     bc_coeff: float = 1.0,
     bc_start_frames: int = 0,
     include_expert_actions: bool = False,
+    device: str | torch.device | None = None,
 ):
     """Registers what the BC term needs on a trainer: the expert replay buffer
-    (``sampler`` = rho), the :class:`ExpertBatchHook`, a :class:`CurriculumHook` when
-    the sampler is a curriculum, and a :class:`DelayedCoefficientHook` when the BC
-    term starts after ``bc_start_frames``. Returns the buffer."""
+    (``sampler`` = rho; its storage on ``device``), the :class:`ExpertBatchHook`, a
+    :class:`CurriculumHook` when the sampler is a curriculum, and a
+    :class:`DelayedCoefficientHook` when the BC term starts after
+    ``bc_start_frames``. Returns the buffer."""
     from torchrl_hybrid.data import CurriculumSampler, make_expert_buffer
     from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook
 
-    buffer = make_expert_buffer(demos, sampler=sampler, include_expert_actions=include_expert_actions)
+    buffer = make_expert_buffer(demos, sampler=sampler, include_expert_actions=include_expert_actions, device=device)
     ExpertBatchHook(buffer, batch_size).register(trainer)
     if isinstance(sampler, CurriculumSampler):
         CurriculumHook(sampler).register(trainer)
