@@ -2,8 +2,9 @@
 
     python benchmarks/atari_profile.py --game Pong --steps 8000
 
-Builds the same run as ``recipes/atari.py`` (:func:`build_atari`), times its
-parts with wall-clock wrappers (no profiler overhead) while it trains, and prints
+Builds the same run as ``recipes/atari.py`` (:func:`build_atari`: AtariCollector,
+collection features kept for the learner), times its parts with wall-clock
+wrappers (no profiler overhead) while it trains, and prints
 milliseconds per batch of 16 envs x 5 steps = 80 agent steps for ``a2c`` and
 ``hybrid_dual`` (BC term on from the start), next to the floors: ale-py stepping
 the same envs with no learner, and the bare CNN (no-grad forward of 16 frame
@@ -19,93 +20,55 @@ from collections import defaultdict
 from pathlib import Path
 
 import torch
-from atari_throughput import bench_config, bench_demos  # benchmarks/ (the script's own folder)
+from atari_throughput import bench_config, bench_demos, floors  # benchmarks/ (the script's own folder)
 
 logging.getLogger("torchrl").setLevel(logging.WARNING)
 
 
-def _timed(fn, timers, name):
+def _timed(fn, timers, name, cuda: bool = False):
+    # on CUDA, kernels run asynchronously: synchronise around each part so that its
+    # time is its own (this slows the run a little; the breakdown is what matters)
     def wrapper(*args, **kwargs):
+        if cuda:
+            torch.cuda.synchronize()
         t = time.perf_counter()
         try:
             return fn(*args, **kwargs)
         finally:
+            if cuda:
+                torch.cuda.synchronize()
             timers[name] += time.perf_counter() - t
     return wrapper
 
 
-def profile_run(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int) -> dict:
+def profile_run(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int,
+                device: str = "cpu") -> dict:
     from torchrl_hybrid.trainers.atari import build_atari
 
-    run = build_atari(bench_config(variant, game, steps, out, demos, threads))
+    run = build_atari(bench_config(variant, game, steps, out, demos, threads, device=device))
     timers: dict[str, float] = defaultdict(float)
-    base = run.env.base_env
-    base._step = _timed(base._step, timers, "env: ale-py step + AtariEnv")
-    pol = run.collection_policy
-    pol.forward = _timed(pol.forward, timers, "policy: CNN + heads + sampling")
+    cuda = run.device.type == "cuda"
     collector = run.trainer.collector
-    collector.rollout = _timed(collector.rollout, timers, "collection (rollout) in all")
-    run.loss.forward = _timed(run.loss.forward, timers, "loss forward (A2C + IDM + BC)")
+    for env in collector.envs:
+        env.send = _timed(env.send, timers, "env: ale-py step (send + recv)", cuda)
+        env.recv = _timed(env.recv, timers, "env: ale-py step (send + recv)", cuda)
+    collector._policy_step = _timed(collector._policy_step, timers, "policy: CNN + heads + sampling", cuda)
+    collector.rollout = _timed(collector.rollout, timers, "collection (rollout) in all", cuda)
+    run.loss.forward = _timed(run.loss.forward, timers, "loss forward (A2C + IDM + BC)", cuda)
     opt = run.trainer.optimizer
-    opt.step = _timed(opt.step, timers, "RMSprop step")
+    opt.step = _timed(opt.step, timers, "RMSprop step", cuda)
     orig_backward = torch.Tensor.backward
-    torch.Tensor.backward = _timed(orig_backward, timers, "backward")
+    torch.Tensor.backward = _timed(orig_backward, timers, "backward", cuda)
     try:
         t0 = time.perf_counter()
         run.trainer.train()
         total = time.perf_counter() - t0
     finally:
         torch.Tensor.backward = orig_backward
-    run.env.close()
     batches = run.trainer.collected_frames / 4 / run.cfg.frames_per_batch
     out = {k: 1000 * v / batches for k, v in timers.items()}
     out["total"] = 1000 * total / batches
     return out
-
-
-def floors(game: str, threads: int) -> dict:
-    from ale_py.vector_env import AtariVectorEnv
-
-    from torchrl_hybrid.envs.atari import _rom_name
-    from torchrl_hybrid.modules import AtariEncoder
-
-    torch.set_num_threads(threads)
-    env = AtariVectorEnv(_rom_name(game), 16, num_threads=threads, autoreset_mode="SameStep", noop_max=30,
-                         frameskip=4, stack_num=4, img_height=84, img_width=84, grayscale=True, maxpool=True)
-    env.reset(seed=0)
-    n = env.single_action_space.n
-    t = time.perf_counter()
-    for _ in range(200):
-        env.step(torch.randint(n, (16,)).numpy())
-    ale = (time.perf_counter() - t) / 200 * 5 * 1000
-    env.close()
-    enc = AtariEncoder()
-    enc.reuse_features = False
-    x16 = torch.randint(0, 255, (16, 4, 84, 84), dtype=torch.uint8)
-    x80 = torch.randint(0, 255, (80, 4, 84, 84), dtype=torch.uint8)
-
-    def bench(f, k):
-        for _ in range(3):
-            f()
-        t = time.perf_counter()
-        for _ in range(k):
-            f()
-        return (time.perf_counter() - t) / k * 1000
-
-    with torch.no_grad():
-        fwd16 = bench(lambda: enc(x16), 100)
-
-    def train80(e):
-        def f():
-            e.zero_grad()
-            e(x80).sum().backward()
-        return f
-
-    plain = AtariEncoder(channels_last=False)
-    plain.reuse_features = False
-    return {"ale-py alone, 5 steps of 16 envs": ale, "CNN no-grad forward of 16, x5": 5 * fwd16,
-            "CNN forward + backward of 80": bench(train80(enc), 20),
-            "  same, contiguous (not channels-last)": bench(train80(plain), 20)}
 
 
 def main() -> None:
@@ -113,15 +76,20 @@ def main() -> None:
     p.add_argument("--game", default="Pong")
     p.add_argument("--steps", type=int, default=8000, help="agent steps per run (x4 game frames)")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--device", default="cpu", help="cpu | cuda | auto: where the learner runs")
     a = p.parse_args()
+    from torchrl_hybrid.utils.device import resolve_device
+
+    device = str(resolve_device(a.device))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         demos = bench_demos(a.game, tmp)
-        runs = {"a2c": profile_run("a2c", a.game, a.steps, tmp, None, a.threads),
-                "hybrid_dual": profile_run("hybrid_dual", a.game, a.steps, tmp, demos, a.threads)}
-    fl = floors(a.game, a.threads)
-    print(f"\n{a.game}: milliseconds per batch of 80 agent steps (16 envs x 5), {a.steps:,} steps a run")
-    keys = ["collection (rollout) in all", "env: ale-py step + AtariEnv", "policy: CNN + heads + sampling",
+        runs = {"a2c": profile_run("a2c", a.game, a.steps, tmp, None, a.threads, device),
+                "hybrid_dual": profile_run("hybrid_dual", a.game, a.steps, tmp, demos, a.threads, device)}
+    fl = floors(a.game, a.threads, device, 16, channels_last_too=True)
+    print(f"\n{a.game}: milliseconds per batch of 80 agent steps (16 envs x 5), {a.steps:,} steps a run, "
+          f"learner on {device}")
+    keys = ["collection (rollout) in all", "env: ale-py step (send + recv)", "policy: CNN + heads + sampling",
             "loss forward (A2C + IDM + BC)", "backward", "RMSprop step"]
     print(f"  {'':34s} {'a2c':>8s} {'hybrid_dual':>12s}")
     for k in keys:

@@ -87,9 +87,11 @@ def sb3(game: str, steps: int, threads: int, device: str, num_envs: int) -> floa
     return steps / (time.perf_counter() - t0)
 
 
-def floors(game: str, threads: int, device: str, num_envs: int, n_steps: int = 5) -> dict[str, float]:
+def floors(game: str, threads: int, device: str, num_envs: int, n_steps: int = 5,
+           channels_last_too: bool = False) -> dict[str, float]:
     """Milliseconds per batch (``num_envs`` x ``n_steps`` agent steps) of ale-py alone
-    and of the bare CNN passes the learner cannot avoid."""
+    and of the bare CNN passes the learner cannot avoid (``channels_last_too``: also
+    the forward + backward pass with contiguous, not channels-last, convolutions)."""
     from ale_py.vector_env import AtariVectorEnv
 
     from torchrl_hybrid.envs.atari import _rom_name
@@ -126,12 +128,19 @@ def floors(game: str, threads: int, device: str, num_envs: int, n_steps: int = 5
     with torch.no_grad():
         fwd = bench(lambda: enc(x_step), 50)
 
-    def train():
-        enc.zero_grad()
-        enc(x_batch).sum().backward()
+    def train(e):
+        def f():
+            e.zero_grad()
+            e(x_batch).sum().backward()
+        return f
 
-    return {"ale-py alone (random actions)": ale, f"CNN no-grad forward of {num_envs}, x{n_steps}": n_steps * fwd,
-            f"CNN forward + backward of {num_envs * n_steps}": bench(train, 20)}
+    out = {"ale-py alone (random actions)": ale, f"CNN no-grad forward of {num_envs}, x{n_steps}": n_steps * fwd,
+           f"CNN forward + backward of {num_envs * n_steps}": bench(train(enc), 20)}
+    if channels_last_too:
+        plain = AtariEncoder(channels_last=False).to(dev)
+        plain.reuse_features = False
+        out["  same, contiguous (not channels-last)"] = bench(train(plain), 20)
+    return out
 
 
 def main() -> None:
@@ -162,7 +171,7 @@ def main() -> None:
     if base is not None:
         rows.append((f"Stable-Baselines3 A2C ({device})", base))
     fl = floors(a.game, a.threads, device, a.num_envs)
-    floor_ms = sum(fl.values())
+    floor_ms = sum(fl.values())  # ALE + collection forward + learner forward/backward
     print(f"\n{a.game}, {a.num_envs} envs x 5 steps a batch, {a.steps:,} agent steps each, {a.threads} threads, "
           f"learner on {device}")
     for name, v in rows:

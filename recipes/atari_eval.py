@@ -20,7 +20,7 @@ from torchrl_hybrid.trainers.atari import evaluate_atari, load_expert
 @hydra.main(config_path="config", config_name="atari_eval", version_base=None)
 def main(cfg: DictConfig) -> None:
     try:
-        actor, ckpt = load_expert(cfg.checkpoint)
+        actor, ckpt = load_expert(cfg.checkpoint, cfg.device)
         game = ckpt["config"]["env"]["game"]
         result = evaluate_atari(actor, game, ckpt["preprocessing"], episodes=cfg.episodes, num_envs=cfg.num_envs,
                                 seed=cfg.seed, deterministic=cfg.deterministic, progress=cfg.progress)

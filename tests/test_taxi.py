@@ -79,6 +79,9 @@ def test_hybrid_never_reads_true_expert_actions(tmp_path):
         ({"demo.epsilon": -0.1}, "demo.epsilon must be in"),
         ({"demo.rho": "greedy"}, "demo.rho"),
         ({"total_frames": 10}, "less than one batch"),
+        ({"device": "tpu"}, "device='tpu'"),
+        ({"device": "cuda", "engine": "batched"}, "engine=batched runs on the CPU only"
+         if torch.cuda.is_available() else "sees no CUDA GPU"),
     ],
 )
 def test_bad_config_is_refused_with_a_clear_message(tmp_path, kw, match):
@@ -129,3 +132,17 @@ def test_hybrid_dual_learns_taxi_with_the_default_budget(tmp_path):
     s = train_taxi(cfg)
     assert s["final_return"] >= 7.0
     assert s["idm_accuracy"] >= 0.80
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.parametrize("variant", ["hybrid_dual", "il"])
+def test_taxi_trains_on_cuda_and_its_model_loads_on_the_cpu(tmp_path, variant):
+    s = train_taxi(tiny(tmp_path, variant=variant, device="cuda"))
+    assert s["frames"] == 640
+    state = torch.load(tmp_path / variant / "model.pt", map_location="cpu", weights_only=False)["actor"]
+    assert all(v.device.type == "cpu" for v in state.values())
+
+
+def test_taxi_runs_with_an_explicit_cpu_device(tmp_path):
+    s = train_taxi(tiny(tmp_path, variant="hybrid_dual", device="cpu", **{"demo.rho": "visited"}))
+    assert s["frames"] == 640 and s["config"]["device"] == "cpu"

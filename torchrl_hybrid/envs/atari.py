@@ -77,6 +77,7 @@ class AtariEnv(EnvBase):
         repeat_action_probability: float = 0.0,
     ):
         try:
+            import ale_py
             from ale_py.vector_env import AtariVectorEnv
         except ImportError as err:  # pragma: no cover - depends on the install
             raise ImportError("Atari needs ale-py: pip install 'torchrl-hybrid[atari]'") from err
@@ -88,6 +89,12 @@ class AtariEnv(EnvBase):
                               "grayscale": True, "maxpool": True, "reward_clipping": reward_clipping,
                               "max_episode_frames": max_episode_frames,
                               "repeat_action_probability": repeat_action_probability}
+        import ale_py.roms
+
+        known = ale_py.roms.get_all_rom_ids()
+        if _rom_name(game) not in known:
+            names = ", ".join(sorted("".join(w.capitalize() for w in r.split("_")) for r in known))
+            raise ValueError(f"unknown Atari game {game!r}; ale-py {ale_py.__version__} has: {names}")
         try:
             self._env = AtariVectorEnv(
                 _rom_name(game), num_envs, num_threads=num_threads, autoreset_mode="SameStep",
@@ -97,7 +104,7 @@ class AtariEnv(EnvBase):
                 repeat_action_probability=repeat_action_probability,
             )
         except Exception as err:
-            raise ValueError(f"ale-py cannot load the game {game!r} ({err}); known: {', '.join(ATARI_GAMES)}") from err
+            raise ValueError(f"ale-py cannot load the game {game!r}: {err}") from err
         self.reward_clipping = reward_clipping
         self._seed = seed
         self._started = False

@@ -18,9 +18,13 @@ def evaluate_policy(env: EnvBase, policy, max_steps: int, deterministic: bool = 
 
     Runs ``max_steps`` steps (set it to the episode cap so every first episode
     ends) with the greedy action (mode of the policy's distribution) by default.
-    Returns a ``[num_envs]`` tensor of returns.
+    Returns a ``[num_envs]`` tensor of returns. A policy on another device than
+    the env gets its inputs moved there and its outputs moved back.
     """
     etype = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    device = _device_of(policy)
+    if device is not None and env.device is not None and device != env.device:
+        policy = _on_device(policy, device, env.device)
     with set_exploration_type(etype):
         td = env.rollout(max_steps, policy, break_when_any_done=False, auto_reset=True)
     reward = td.get(("next", "reward")).squeeze(-1)
@@ -39,5 +43,17 @@ def inverse_model_accuracy(inverse_model: InverseDynamicsModel, demos: TensorDic
     """Fraction of expert pairs whose inferred action equals the true expert action."""
     if EXPERT_ACTION_KEY not in demos.keys():
         raise KeyError(f"the demos carry no {EXPERT_ACTION_KEY!r}: accuracy cannot be measured")
-    pred = inverse_model.infer(demos["observation"], demos["next", "observation"])
-    return float((pred == demos[EXPERT_ACTION_KEY]).float().mean())
+    device = _device_of(inverse_model) or demos.device or torch.device("cpu")
+    pred = inverse_model.infer(demos["observation"].to(device), demos["next", "observation"].to(device))
+    return float((pred == demos[EXPERT_ACTION_KEY].to(device)).float().mean())
+
+
+def _device_of(module) -> torch.device | None:
+    p = next(iter(module.parameters()), None) if hasattr(module, "parameters") else None
+    return None if p is None else p.device
+
+
+def _on_device(policy, device, env_device):
+    def run(td: TensorDictBase) -> TensorDictBase:
+        return policy(td.to(device)).to(env_device)
+    return run

@@ -41,6 +41,7 @@ from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_ac
 from torchrl_hybrid.trainers.hooks import MetricsHook
 from torchrl_hybrid.trainers.hybrid import attach_demonstrations, get_variant, make_hybrid_loss, make_trainer, param_groups
 from torchrl_hybrid.utils.config import dataclass_from_dict
+from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["TaxiConfig", "config_from_dict", "make_taxi_demos", "train_taxi"]
@@ -121,6 +122,7 @@ class TaxiConfig:
     out_dir: str = "outputs/taxi"
     threads: int = 1
     engine: str = "torchrl"
+    device: str = "auto"
     env: EnvConfig = field(default_factory=EnvConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -130,6 +132,9 @@ class TaxiConfig:
     def validate(self) -> "TaxiConfig":
         """Raises ``ValueError`` naming the bad setting and what is allowed."""
         get_variant(self.variant)
+        if resolve_device(self.device).type != "cpu" and self.engine == "batched" and self.device != "auto":
+            raise ValueError(f"engine=batched runs on the CPU only; use device=cpu (or device=auto), "
+                             f"or engine=torchrl for device={self.device}")
 
         def need(ok: bool, msg: str):
             if not ok:
@@ -196,6 +201,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     os.environ.setdefault("TQDM_MININTERVAL", "1" if sys.stderr.isatty() else "30")
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
+    device = resolve_device(cfg.device)  # networks, learner, demos; the envs stay on the CPU
     variant = get_variant(cfg.variant)
     out = Path(cfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -231,11 +237,12 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
         gamma=lc.gamma, critic_coeff=lc.critic_coeff, entropy_coeff=lc.entropy_coeff,
         idm_action_coeff=lc.idm_action_coeff, idm_embedding_coeff=lc.idm_embedding_coeff,
         idm_forward_coeff=lc.idm_forward_coeff, bc_coeff=lc.bc_coeff, expert_action_key=EXPERT_ACTION_KEY,
-    )
+    ).to(device)
     optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
 
     collector = Collector(
         env, actor, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames,
+        env_device="cpu", policy_device=device, storing_device=device,
         auto_register_policy_transforms=False,  # a feed-forward policy needs none
     )
     logger = None
@@ -255,7 +262,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
                    }[cfg.demo.rho]()
         attach_demonstrations(trainer, loss, demos, sampler=sampler, batch_size=cfg.demo.batch_size,
                               bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
-                              include_expert_actions=variant.bc == "true")
+                              include_expert_actions=variant.bc == "true", device=device)
 
     def evaluator(episodes_env=eval_env):
         returns = evaluate_policy(episodes_env, actor, cfg.env.max_episode_steps)
