@@ -175,6 +175,10 @@ def test_cuda_run_and_checkpoints_move_between_devices(tmp_path, backend):
 def test_cuda_collector_matches_cpu_collector():
     torch.manual_seed(0)
     *_, policy = make_atari_actor_critic(4)
+    head = policy.module.policy_head
+    with torch.no_grad():  # a clear greedy choice: CPU and CUDA rounding cannot flip it
+        head.weight.zero_()
+        head.bias.copy_(torch.tensor([0.0, 0.0, 3.0, 0.0]))
     outs = {}
     for dev in ("cpu", "cuda"):
         envs = AtariCollector.make_envs("Breakout", 4, seed=3, num_threads=1)
