@@ -207,3 +207,9 @@ def test_a_checkpoint_for_another_game_is_refused(tmp_path):
     actor, ckpt = load_expert(tmp_path / "model.pt")
     with pytest.raises(ValueError, match="the policy has 6 actions but Breakout has 4"):
         evaluate_atari(actor, "Breakout", ckpt["preprocessing"], episodes=1, num_envs=1, max_steps=2)
+
+
+def test_collector_refuses_a_policy_for_another_game():
+    *_, policy = make_atari_actor_critic(6)  # Pong's action count
+    with pytest.raises(ValueError, match="the policy has 6 actions but Breakout has 4"):
+        AtariCollector(AtariCollector.make_envs("Breakout", 2, num_threads=1), policy, frames_per_batch=2)

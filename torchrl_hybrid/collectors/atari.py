@@ -123,6 +123,12 @@ class AtariCollector(BaseCollector):
                              f"games ({self.num_envs})")
         self.policy = policy
         self._policy_fn = policy.module if isinstance(policy, TensorDictModuleBase) and hasattr(policy, "module") else policy
+        try:  # the fused policy's action head; for any other module its last linear layer
+            self.envs[0].check_policy(getattr(self._policy_fn, "policy_head", self._policy_fn))
+        except ValueError:
+            for env in self.envs:
+                env.close()
+            raise
         if keep_features and not (hasattr(self._policy_fn, "encoder") and hasattr(self._policy_fn, "heads")
                                   and hasattr(self._policy_fn.encoder, "remember")):
             raise ValueError("keep_features=True needs a policy with `encoder` (an AtariEncoder) and `heads`, "
@@ -130,8 +136,8 @@ class AtariCollector(BaseCollector):
         self.keep_features = bool(keep_features)
         self.frames_per_batch = int(frames_per_batch)
         self.n_steps = self.frames_per_batch // self.num_envs
+        self.requested_frames_per_batch = self.frames_per_batch  # read by BaseCollector
         self.total_frames = int(total_frames) if total_frames > 0 else -1
-        self.requested_frames_per_batch = self.frames_per_batch
         self.init_random_frames = 0
         self.device = torch.device(device)
         self.exploration_type = exploration_type
@@ -144,7 +150,6 @@ class AtariCollector(BaseCollector):
         self._frames = 0
         self._obs: torch.Tensor | None = None  # [num_envs, *stack] frames the next batch starts from
         self._episode_score = torch.zeros(self.num_envs, dtype=torch.float64)
-        self._lives = torch.zeros(self.num_envs, dtype=torch.int64)
         self._closed = False
         self._start()  # as TorchRL's collectors: the envs are reset when the collector is built
 
@@ -161,9 +166,8 @@ class AtariCollector(BaseCollector):
     def _start(self) -> None:
         self._obs = torch.empty(self.num_envs, *self._stack_shape, dtype=torch.uint8, device=self.device)
         for env, sl, stage in zip(self.envs, self._slices, self._staging):
-            obs, lives = env.reset_all()
+            obs, _ = env.reset_all()
             stage.to_device(obs, self._obs[sl])
-            self._lives[sl] = torch.from_numpy(np.asarray(lives, dtype=np.int64))
         self._episode_score.zero_()
 
     def rollout(self) -> TensorDictBase:
@@ -288,8 +292,3 @@ class AtariCollector(BaseCollector):
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(game={self.envs[0].game!r}, num_envs={self.num_envs}, "
                 f"env_groups={len(self.envs)}, n_steps={self.n_steps}, device={self.device})")
-
-    # agent steps collected so far
-    @property
-    def frames(self) -> int:
-        return self._frames

@@ -155,6 +155,17 @@ class AtariEnv(EnvBase):
             self._pending = None
         return TensorDict({"observation": self._obs.clone(), "lives": self._lives.clone(), **self._done_td(n)}, [n])
 
+    def check_policy(self, policy: torch.nn.Module) -> None:
+        """Refuses a policy whose last linear layer (its action head) does not have
+        this game's number of actions, e.g. a checkpoint trained on another game;
+        closes the env first."""
+        heads = [m for m in policy.modules() if isinstance(m, torch.nn.Linear)]
+        n = heads[-1].out_features if heads else None
+        if n is not None and n != self.n_actions:
+            self.close()
+            raise ValueError(f"the policy has {n} actions but {self.game} has {self.n_actions}: "
+                             "is the checkpoint made for another game?")
+
     def send(self, action) -> None:
         """Starts a step of every game with ``action`` (``[num_envs]`` ints) and returns
         at once: ale-py steps the games on its worker threads until :meth:`recv`.

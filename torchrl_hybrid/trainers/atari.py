@@ -373,7 +373,7 @@ def evaluate_atari(
     torch.manual_seed(seed)
     env = AtariEnv(game, num_envs, seed=seed, num_threads=num_threads, noop_max=preprocessing["noop_max"],
                    max_episode_frames=preprocessing["max_episode_frames"])
-    _check_action_count(actor, env)
+    env.check_policy(actor)
     td = env.reset()
     running = torch.zeros(num_envs)
     scores: list[float] = []
@@ -396,15 +396,6 @@ def evaluate_atari(
     t = torch.tensor(scores)
     return {"mean": float(t.mean()) if scores else None, "std": float(t.std()) if len(scores) > 1 else None,
             "scores": scores, "episodes": len(scores), "deterministic": deterministic}
-
-
-def _check_action_count(actor, env: AtariEnv) -> None:
-    heads = [m for m in actor.modules() if isinstance(m, torch.nn.Linear)]
-    n = heads[-1].out_features if heads else None
-    if n is not None and n != env.n_actions:
-        env.close()
-        raise ValueError(f"the policy has {n} actions but {env.game} has {env.n_actions}: "
-                         "is the checkpoint made for another game?")
 
 
 def _module_device(module) -> torch.device:
@@ -461,7 +452,7 @@ def record_demos(
     pre = ckpt["preprocessing"]
     env = AtariEnv(game, num_envs, seed=seed, num_threads=ckpt["config"]["env"]["num_threads"],
                    noop_max=pre["noop_max"], max_episode_frames=pre["max_episode_frames"])
-    _check_action_count(actor, env)
+    env.check_policy(actor)
     td = env.reset()
     # per env: the trajectory being recorded, or None while waiting for the episode to end
     states: list[list[torch.Tensor] | None] = [[td["observation"][i].clone()] for i in range(num_envs)]
