@@ -38,6 +38,7 @@ def bench_config(variant: str, game: str, steps: int, out: Path, demos: Path | N
     from torchrl_hybrid.trainers.atari import atari_config
 
     cfg = {"variant": variant, "total_frames": 4 * steps, "out_dir": str(out / variant), "threads": threads,
+           "overwrite": True,  # a scratch folder, measured again by --all
            "device": device, "env": {"game": game, "num_envs": num_envs, "num_threads": threads},
            "collector": collector or {},
            "loss": {"bc_start_frames": 0},

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import tempfile
 import time
 
 import numpy as np
@@ -38,9 +39,11 @@ def compare(variant: str, seeds: int, frames: int, workers_note: str = "") -> di
     from torchrl_hybrid.trainers.batched import train_taxi_batched
     from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
 
+    root = tempfile.mkdtemp(prefix="paths_agree_")  # the runs' files are scratch
+
     def cfg(seed):
-        return config_from_dict({"variant": variant, "seed": seed, "total_frames": frames,
-                                 "out_dir": f"/tmp/paths_agree/{variant}_{seed}",
+        return config_from_dict({"variant": variant, "seed": seed, "total_frames": frames, "device": "cpu",
+                                 "out_dir": f"{root}/{variant}_{seed}",
                                  "logger": {"progress_bar": False, "backend": "none", "checkpoint": False}})
 
     def stats(curves, finals):

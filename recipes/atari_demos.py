@@ -18,7 +18,8 @@ def main(cfg: DictConfig) -> None:
     try:
         meta = record_demos(cfg.expert, cfg.out, num_trajectories=cfg.num_trajectories, num_envs=cfg.num_envs,
                             seed=cfg.seed, deterministic=cfg.deterministic, max_steps=cfg.max_steps,
-                            cut=cfg.cut, progress=cfg.progress, device=cfg.device)
+                            cut=cfg.cut, progress=cfg.progress, device=cfg.device,
+                            overwrite=cfg.overwrite)
     except MissingMandatoryValue as err:
         print(f"error: {err.full_key}=... is required (see recipes/config/atari_demos.yaml)", file=sys.stderr)
         sys.exit(2)

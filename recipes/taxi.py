@@ -5,7 +5,8 @@
     python recipes/taxi.py demo.eta=0.5 out_dir=/tmp/eta05
 
 Every option is documented in recipes/config/taxi.yaml. Writes metrics.csv,
-summary.json, learning_curve.png, model.pt and checkpoint.pt into ``out_dir``.
+summary.json, learning_curve.png, model.pt, config.json and a TorchRL checkpoint/ folder
+into ``out_dir`` (``resume=true`` continues it, ``overwrite=true`` replaces it).
 """
 from __future__ import annotations
 
@@ -25,8 +26,10 @@ def main(cfg: DictConfig) -> None:
         config = config_from_dict(raw)
         if config.engine == "batched":
             from torchrl_hybrid.trainers.batched import train_taxi_batched
+            from torchrl_hybrid.utils.files import prepare_out_dir
 
-            summary = train_taxi_batched([config])[0]
+            with prepare_out_dir(config.out_dir, overwrite=config.overwrite):  # the same out_dir rules
+                summary = train_taxi_batched([config])[0]
         else:
             summary = train_taxi(config)
     except (ValueError, FileNotFoundError) as err:

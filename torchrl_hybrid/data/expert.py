@@ -16,6 +16,7 @@ Pairs never span two trajectories.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Sequence
 
@@ -25,6 +26,7 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.data.replay_buffers.samplers import RandomSampler, Sampler
 
 from torchrl_hybrid.envs.tabular import TabularModel
+from torchrl_hybrid.utils.files import check_memmap_folder, read_json
 
 __all__ = [
     "EXPERT_ACTION_KEY",
@@ -167,9 +169,17 @@ def validate_demos(
     return demos
 
 
-def save_demos(demos: TensorDictBase, path: str | Path, metadata: dict | None = None) -> Path:
-    """Writes the dataset as a memory-mapped TensorDict folder plus ``metadata.json``."""
+def save_demos(demos: TensorDictBase, path: str | Path, metadata: dict | None = None, *,
+               overwrite: bool = False) -> Path:
+    """Writes the dataset as a memory-mapped TensorDict folder plus ``metadata.json``.
+    A folder that already holds files is refused unless ``overwrite`` (then the
+    folder is replaced whole)."""
     path = Path(path)
+    if path.exists() and (not path.is_dir() or any(path.iterdir())):
+        if not overwrite:
+            raise ValueError(f"{path} already exists and is not empty; pass overwrite=true to replace it "
+                             "or choose another folder")
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
     demos.memmap(path)
     (path / "metadata.json").write_text(json.dumps(metadata or {}, indent=2))
     return path
@@ -182,12 +192,15 @@ def load_demos(
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"demo dataset {str(path)!r} does not exist; generate it first or fix the path.")
+    if not path.is_dir():
+        raise ValueError(f"{str(path)!r} is a file, not a demo dataset folder written by save_demos")
+    check_memmap_folder(path)  # a truncated file would be padded with zeros (and extended on disk)
     try:
         demos = TensorDict.load_memmap(path)
     except Exception as err:  # a folder that is not a saved TensorDict
         raise ValueError(f"{str(path)!r} is not a demo dataset written by save_demos: {err}") from err
     meta_file = path / "metadata.json"
-    metadata = json.loads(meta_file.read_text()) if meta_file.exists() else {}
+    metadata = read_json(meta_file, "demo metadata") if meta_file.exists() else {}
     return validate_demos(demos, obs_shape=obs_shape, obs_dtype=obs_dtype, source=str(path)), metadata
 
 

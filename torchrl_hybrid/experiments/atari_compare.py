@@ -95,9 +95,11 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                     continue
                 d = _merge({"threads": threads, "env": {"num_threads": threads},
                             "logger": {"progress_bar": cfg.workers == 1}}, cfg.base)
-                # resume: a run interrupted mid-way goes on from its last checkpoint
+                # a run interrupted mid-way goes on from its last checkpoint; one cut before
+                # its first checkpoint starts again (overwriting its partial curve)
+                ckpt = (out / "checkpoint").exists()
                 d = _merge(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
-                               "out_dir": str(out), "env": {"game": game}, "resume": True,
+                               "out_dir": str(out), "env": {"game": game}, "resume": ckpt, "overwrite": not ckpt,
                                "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
                 jobs.append((d, f"{game}/{variant}_s{seed}"))
     print(f"{len(jobs)} run(s) to do in {cfg.out_dir}", flush=True)

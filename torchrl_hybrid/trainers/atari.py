@@ -42,9 +42,11 @@ from torchrl_hybrid.trainers.hybrid import (
     make_hybrid_loss,
     make_trainer,
     param_groups,
+    resume_trainer,
 )
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.device import resolve_device
+from torchrl_hybrid.utils.files import prepare_out_dir
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["AtariConfig", "AtariRun", "atari_config", "build_atari", "train_atari", "evaluate_atari", "record_demos",
@@ -120,6 +122,7 @@ class AtariConfig:
     threads: int = 2
     init: str = "orthogonal"
     resume: bool = False
+    overwrite: bool = False
     device: str = "auto"
     env: AtariEnvConfig = field(default_factory=AtariEnvConfig)
     collector: AtariCollectorConfig = field(default_factory=AtariCollectorConfig)
@@ -197,6 +200,7 @@ class AtariRun:
     out: Path
     device: torch.device
     resumed_from: int = 0
+    lock: Any = None  # the out_dir lock (released when the run is closed or the process ends)
 
 
 def build_atari(cfg: AtariConfig) -> AtariRun:
@@ -211,7 +215,7 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
     device = resolve_device(cfg.device)
     variant = get_variant(cfg.variant)
     out = Path(cfg.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    lock = prepare_out_dir(out, resume=cfg.resume, overwrite=cfg.overwrite)  # held while `run` lives
 
     # the games run on the CPU; networks, learner and demos live on `device`
     if cfg.collector.backend == "atari":
@@ -287,36 +291,15 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
     metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator,
                           pbar_keys=("return_mean",), return_key=("next", "episode_score"))
     metrics.register(trainer)
-    resumed = _maybe_resume(cfg, trainer, out)
+    resumed = resume_trainer(trainer, out, dataclasses.asdict(cfg), _RESUME_KEYS, _RESUME_IGNORE) if cfg.resume else 0
     (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=2))
     return AtariRun(cfg, trainer, env, actor, critic, encoder, inverse_model, collection_policy, loss, metrics, out,
-                    device, resumed)
+                    device, resumed, lock)
 
 
-# a checkpoint is resumed only by a run that agrees on these (total_frames may grow)
+# a checkpoint is resumed only by a run that agrees on these (total_frames may grow; threads and device may change)
 _RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "init", "env", "demo", "loss", "optim")
-
-
-def _maybe_resume(cfg: AtariConfig, trainer, out: Path) -> int:
-    """Loads ``out/checkpoint`` into ``trainer`` when ``cfg.resume``; returns the
-    game frames it had collected (0 when starting afresh)."""
-    ckpt = out / "checkpoint"
-    if not cfg.resume:
-        return 0
-    if not ckpt.exists():
-        print(f"resume: no checkpoint in {out}; starting from scratch", file=sys.stderr)
-        return 0
-    saved_path = out / "config.json"
-    if saved_path.exists():
-        saved = json.loads(saved_path.read_text())
-        now = dataclasses.asdict(cfg)
-        diff = [k for k in _RESUME_KEYS if saved.get(k) != now.get(k)]
-        if diff:
-            raise ValueError(f"resume: the checkpoint in {out} was written with other settings for {diff} "
-                             f"(see {saved_path}); use another out_dir or the same settings")
-    trainer.load_from_file(ckpt)
-    print(f"resume: continuing from {trainer.collected_frames:,} frames ({ckpt})", file=sys.stderr)
-    return int(trainer.collected_frames)
+_RESUME_IGNORE = ("env.num_threads",)
 
 
 def train_atari(cfg: AtariConfig) -> dict[str, Any]:
@@ -354,6 +337,7 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
                 "config": dataclasses.asdict(cfg), "evaluation": evaluation}, out / "model.pt")
     plot_learning_curve(metrics.rows, out / "learning_curve.png", title=f"{cfg.env.game}, {cfg.variant}, seed {cfg.seed}")
     trainer.collector.shutdown()
+    run.lock.close()
     return summary
 
 
@@ -429,6 +413,7 @@ def record_demos(
     cut: str = "auto",
     progress: bool = True,
     device: str | torch.device = "auto",
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Plays the expert and saves ``num_trajectories`` state-only trajectories as a
     memory-mapped dataset of expert pairs with metadata. True actions go only under
@@ -445,6 +430,10 @@ def record_demos(
         raise ValueError(f"cut={cut!r}: choose one of 'auto', 'life', 'point', 'episode'")
     if num_trajectories < 1 or max_steps < 1:
         raise ValueError(f"num_trajectories and max_steps must be >= 1, got {num_trajectories}, {max_steps}")
+    out = Path(out_path)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:  # before minutes of play
+        raise ValueError(f"{out} already exists and is not empty; pass overwrite=true to replace it "
+                         "or choose another folder")
     actor, ckpt = load_expert(expert_path, device)
     device = _module_device(actor)
     torch.manual_seed(seed)  # the expert's sampled actions: the same seed records the same demos
@@ -502,5 +491,5 @@ def record_demos(
         "cut": {"life": "first life lost", "point": "first point lost (negative reward)",
                 "episode": "episode end"}[cut] + f", episode end or {max_steps} steps",
     }
-    save_demos(demos, out_path, meta)
+    save_demos(demos, out_path, meta, overwrite=overwrite)
     return meta

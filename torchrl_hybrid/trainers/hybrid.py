@@ -1,7 +1,10 @@
 """The one pipeline behind every agent variant: losses and trainer assembly."""
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import torch
 from torchrl.objectives import A2CLoss, ValueEstimators
@@ -19,7 +22,8 @@ from torchrl_hybrid.objectives import (
     PolicyEntropyLoss,
 )
 
-__all__ = ["GroupClipOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant", "make_hybrid_loss", "make_trainer"]
+__all__ = ["GroupClipOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
+           "make_hybrid_loss", "make_trainer", "resume_trainer"]
 
 
 @dataclass(frozen=True)
@@ -230,3 +234,43 @@ def attach_demonstrations(
     if bc_start_frames > 0:
         DelayedCoefficientHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_start_frames).register(trainer)
     return buffer
+
+
+def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str, ...],
+                   ignore: tuple[str, ...] = ()) -> int:
+    """Loads ``out/checkpoint`` into ``trainer`` after checking that the run that wrote
+    it (``out/config.json``) agrees with ``settings`` on every entry under ``keys``
+    (dotted names in ``ignore`` may differ: thread counts, the device). Returns the
+    frames the checkpoint had collected, 0 when there is none (a fresh start)."""
+    from torchrl_hybrid.utils.files import check_memmap_folder, read_json
+
+    ckpt, saved_path = out / "checkpoint", out / "config.json"
+    if not ckpt.exists():
+        print(f"resume: no checkpoint in {out}; starting from scratch", file=sys.stderr)
+        return 0
+    if not saved_path.exists():
+        raise ValueError(f"resume: {ckpt} has no {saved_path.name} beside it, so its settings cannot be checked; "
+                         "pass overwrite=true to start again there, or choose another out_dir")
+    saved = _flatten({k: v for k, v in read_json(saved_path, "run config").items() if k in keys})
+    now = _flatten({k: v for k, v in settings.items() if k in keys})
+    diff = sorted(k for k in set(saved) | set(now) if k not in ignore and saved.get(k) != now.get(k))
+    if diff:
+        was = ", ".join(f"{k}: {saved.get(k)!r} -> {now.get(k)!r}" for k in diff)
+        raise ValueError(f"resume: the checkpoint in {out} was written with other settings for {diff} ({was}; "
+                         f"see {saved_path}); use another out_dir or the same settings")
+    if (ckpt / "manifest.json").exists():  # TorchRL's checkpoint format: the list of its components
+        read_json(ckpt / "manifest.json", "checkpoint manifest")
+    check_memmap_folder(ckpt)
+    trainer.load_from_file(ckpt)
+    print(f"resume: continuing from {trainer.collected_frames:,} frames ({ckpt})", file=sys.stderr)
+    return int(trainer.collected_frames)

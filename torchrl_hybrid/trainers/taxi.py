@@ -39,9 +39,21 @@ from torchrl_hybrid.modules import (
 )
 from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import MetricsHook
-from torchrl_hybrid.trainers.hybrid import attach_demonstrations, get_variant, make_hybrid_loss, make_trainer, param_groups
+from torchrl_hybrid.trainers.hybrid import (
+    attach_demonstrations,
+    get_variant,
+    make_hybrid_loss,
+    make_trainer,
+    param_groups,
+    resume_trainer,
+)
+
+# a checkpoint is resumed only by a run that agrees on these (total_frames may grow)
+_RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "mlp_layers", "identity_embedding", "env", "demo", "loss",
+                "optim")
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.device import resolve_device
+from torchrl_hybrid.utils.files import prepare_out_dir
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["TaxiConfig", "config_from_dict", "make_taxi_demos", "train_taxi"]
@@ -123,6 +135,8 @@ class TaxiConfig:
     threads: int = 1
     engine: str = "torchrl"
     device: str = "auto"
+    resume: bool = False
+    overwrite: bool = False
     env: EnvConfig = field(default_factory=EnvConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -132,6 +146,8 @@ class TaxiConfig:
     def validate(self) -> "TaxiConfig":
         """Raises ``ValueError`` naming the bad setting and what is allowed."""
         get_variant(self.variant)
+        if self.engine == "batched" and self.resume:
+            raise ValueError("resume=true needs engine=torchrl (the batched engine writes no checkpoint)")
         if resolve_device(self.device).type != "cpu" and self.engine == "batched" and self.device != "auto":
             raise ValueError(f"engine=batched runs on the CPU only; use device=cpu (or device=auto), "
                              f"or engine=torchrl for device={self.device}")
@@ -188,7 +204,8 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
             epsilon_mode=cfg.demo.epsilon_mode, generator=generator,
         )
     if cfg.demo.save_path:
-        save_demos(demos, cfg.demo.save_path, {"env_id": cfg.env.env_id, "eta": cfg.demo.eta, "epsilon": cfg.demo.epsilon})
+        save_demos(demos, cfg.demo.save_path, {"env_id": cfg.env.env_id, "eta": cfg.demo.eta, "epsilon": cfg.demo.epsilon},
+                   overwrite=cfg.overwrite)
     return demos, policy
 
 
@@ -204,7 +221,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     device = resolve_device(cfg.device)  # networks, learner, demos; the envs stay on the CPU
     variant = get_variant(cfg.variant)
     out = Path(cfg.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    lock = prepare_out_dir(out, resume=cfg.resume, overwrite=cfg.overwrite)
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
 
@@ -273,6 +290,8 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
 
     metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator, pbar_keys=("return_mean", "eval_return"))
     metrics.register(trainer)
+    resumed = resume_trainer(trainer, out, dataclasses.asdict(cfg), _RESUME_KEYS) if cfg.resume else 0
+    (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=2))
 
     t0 = time.perf_counter()
     trainer.train()
@@ -294,7 +313,8 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
         "idm_accuracy": inverse_model_accuracy(inverse_model, demos)
         if inverse_model is not None and EXPERT_ACTION_KEY in demos.keys() else None,
         "train_time_s": round(train_time, 2),
-        "frames_per_s": round(trainer.collected_frames / train_time, 1),
+        "frames_per_s": round((trainer.collected_frames - resumed) / train_time, 1),
+        "resumed_from_frames": resumed,
         "config": dataclasses.asdict(cfg),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -310,4 +330,5 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     )
     for e in (eval_env, final_env):
         e.close()
+    lock.close()
     return summary
