@@ -402,3 +402,15 @@ def test_demo_recording_is_seeded(pong_demos, tmp_path):
     a, _ = load_demos(tmp_path / "d0")
     b, _ = load_demos(tmp_path / "d1")
     assert torch.equal(a["expert_action"], b["expert_action"])
+
+
+def test_demos_of_random_frames_are_refused(pong_demos, tmp_path):
+    demos, meta = load_demos(pong_demos / "demos")
+    fake = demos.clone()
+    fake["observation"] = torch.randint(0, 256, fake["observation"].shape, dtype=torch.uint8)
+    fake["next", "observation"] = torch.randint(0, 256, fake["observation"].shape, dtype=torch.uint8)
+    from torchrl_hybrid.data import save_demos
+
+    save_demos(fake, tmp_path / "fake", meta)
+    with pytest.raises(ValueError, match="do not share their stacked frames"):
+        train_atari(tiny(tmp_path / "run", variant="hybrid_dual", demo={"path": str(tmp_path / "fake")}))

@@ -213,3 +213,15 @@ def test_collector_refuses_a_policy_for_another_game():
     *_, policy = make_atari_actor_critic(6)  # Pong's action count
     with pytest.raises(ValueError, match="the policy has 6 actions but Breakout has 4"):
         AtariCollector(AtariCollector.make_envs("Breakout", 2, num_threads=1), policy, frames_per_batch=2)
+
+
+def test_files_that_are_not_atari_checkpoints_are_named(tmp_path):
+    (tmp_path / "empty.pt").write_bytes(b"")
+    (tmp_path / "random.pt").write_bytes(bytes(range(256)) * 4)
+    torch.save({"actor": {}, "critic": {}, "config": {"variant": "hybrid_dual"}}, tmp_path / "taxi.pt")
+    with pytest.raises(ValueError, match="empty.pt is empty, not a model.pt"):
+        load_expert(tmp_path / "empty.pt")
+    with pytest.raises(ValueError, match="random.pt is not a model.pt written by train_atari"):
+        load_expert(tmp_path / "random.pt")
+    with pytest.raises(ValueError, match=r"taxi.pt is not an Atari checkpoint: it lacks \['n_actions', 'preprocessing'\]"):
+        load_expert(tmp_path / "taxi.pt")

@@ -80,6 +80,11 @@ def test_hybrid_never_reads_true_expert_actions(tmp_path):
         ({"demo.rho": "greedy"}, "demo.rho"),
         ({"total_frames": 10}, "less than one batch"),
         ({"device": "tpu"}, "device='tpu'"),
+        ({"seed": "abc"}, "seed='abc' must be an integer"),
+        ({"rank": "abc"}, "rank='abc' must be an integer"),
+        ({"demo.eta": "abc"}, "demo.eta='abc' must be a number"),
+        ({"env.env_id": "CartPole-v1", "env.backend": "gym"}, "CartPole-v1: this pipeline's built-in expert needs a toy-text"),
+        ({"env.env_id": "CliffWalkingSlippery-v1"}, "CliffWalkingSlippery-v1: its transitions are random"),
         ({"device": "cuda", "engine": "batched"}, "engine=batched runs on the CPU only"
          if torch.cuda.is_available() else "sees no CUDA GPU"),
     ],
@@ -146,3 +151,17 @@ def test_taxi_trains_on_cuda_and_its_model_loads_on_the_cpu(tmp_path, variant):
 def test_taxi_runs_with_an_explicit_cpu_device(tmp_path):
     s = train_taxi(tiny(tmp_path, variant="hybrid_dual", device="cpu", **{"demo.rho": "visited"}))
     assert s["frames"] == 640 and s["config"]["device"] == "cpu"
+
+
+def test_demos_with_impossible_transitions_are_refused(tmp_path, taxi):
+    from torchrl_hybrid.data import tabular_state_pairs
+
+    model, policy, _ = taxi
+    demos = tabular_state_pairs(model, policy)
+    save_demos(demos, tmp_path / "ok")
+    assert train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "a"), **{"demo.path": str(tmp_path / "ok")}))["frames"] == 640
+    shuffled = demos.clone()
+    shuffled["next", "observation"] = shuffled["next", "observation"][torch.randperm(len(demos))]
+    save_demos(shuffled, tmp_path / "shuffled")
+    with pytest.raises(ValueError, match=r"pairs are not transitions of Taxi-v4 under any action"):
+        train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "b"), **{"demo.path": str(tmp_path / "shuffled")}))

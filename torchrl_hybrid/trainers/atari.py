@@ -183,6 +183,19 @@ def _check_demo_metadata(meta: dict, cfg: AtariConfig, env: AtariEnv, path: str)
         )
 
 
+def _check_frame_stacks(demos, path: str, sample: int = 256) -> None:
+    # a pair (s, s') of a real trajectory shares 3 of its 4 stacked frames: s'[:-1] == s[1:]
+    n = demos.batch_size.numel()
+    idx = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:sample]
+    s, s2 = demos["observation"].reshape(n, *demos["observation"].shape[-3:])[idx], \
+        demos["next", "observation"].reshape(n, *demos["observation"].shape[-3:])[idx]
+    ok = (s2[:, :-1] == s[:, 1:]).flatten(1).all(-1)
+    if not bool(ok.all()):
+        raise ValueError(f"{path}: {int((~ok).sum())} of {len(idx)} sampled pairs (s, s') do not share their stacked "
+                         "frames (s' should drop the oldest frame of s and add one); these are not recorded "
+                         "trajectories (random or damaged frames?)")
+
+
 @dataclass
 class AtariRun:
     """Everything :func:`build_atari` wires together (see :func:`train_atari`)."""
@@ -231,6 +244,7 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
         demos, meta = load_demos(cfg.demo.path, obs_shape=tuple(base.observation_spec["observation"].shape[1:]),
                                  obs_dtype=torch.uint8)
         _check_demo_metadata(meta, cfg, base, cfg.demo.path)
+        _check_frame_stacks(demos, cfg.demo.path)
 
     actor, critic, encoder, collection_policy = make_atari_actor_critic(base.n_actions, init=cfg.init)
     inverse_model = None
@@ -394,9 +408,22 @@ def load_expert(path: str | Path, device: str | torch.device = "cpu"):
     if not path.exists():
         raise FileNotFoundError(f"expert checkpoint {str(path)!r} does not exist; train one with recipes/atari_expert.py")
     device = resolve_device(device)
-    ckpt = torch.load(path, weights_only=False, map_location="cpu")
+    if path.is_dir() or path.stat().st_size == 0:
+        raise ValueError(f"{path} is {'a folder' if path.is_dir() else 'empty'}, not a model.pt written by train_atari")
+    try:
+        ckpt = torch.load(path, weights_only=False, map_location="cpu")
+    except Exception as err:  # truncated, random bytes, another format
+        raise ValueError(f"{path} is not a model.pt written by train_atari ({type(err).__name__}: {err})") from None
+    need = ("n_actions", "actor", "preprocessing", "config")
+    if not isinstance(ckpt, dict) or any(k not in ckpt for k in need):
+        keys = sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt).__name__
+        raise ValueError(f"{path} is not an Atari checkpoint: it lacks {[k for k in need if k not in ckpt] if isinstance(ckpt, dict) else need} "
+                         f"(it has {keys}; a Taxi model.pt?)")
     actor = make_atari_actor_critic(ckpt["n_actions"])[0]
-    actor.load_state_dict(ckpt["actor"])
+    try:
+        actor.load_state_dict(ckpt["actor"])
+    except RuntimeError as err:
+        raise ValueError(f"{path}: its actor does not fit the paper's Atari network ({err})") from None
     return actor.to(device), ckpt
 
 

@@ -194,6 +194,14 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
         s = torch.cat([demos["observation"], demos["next", "observation"]])
         if s.min() < 0 or s.max() >= model.n_states:
             raise ValueError(f"{cfg.demo.path}: states outside [0, {model.n_states}); demos are for another env")
+        # every pair must be a transition of the env under some action (the table says which)
+        obs, nxt = demos["observation"].reshape(-1), demos["next", "observation"].reshape(-1)
+        possible = ((model.next_state[obs] == nxt.view(-1, 1, 1)) & (model.prob[obs] > 0)).flatten(1).any(-1)
+        if not bool(possible.all()):
+            i = int((~possible).nonzero()[0])
+            raise ValueError(f"{cfg.demo.path}: {int((~possible).sum())} of {possible.numel()} pairs are not transitions "
+                             f"of {cfg.env.env_id} under any action (first: pair {i}, {int(obs[i])} -> {int(nxt[i])}); "
+                             "demos for another env, or shuffled next states")
     elif cfg.demo.form == "per_state":
         demos = tabular_state_pairs(model, policy)
     else:
@@ -207,6 +215,21 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
         save_demos(demos, cfg.demo.save_path, {"env_id": cfg.env.env_id, "eta": cfg.demo.eta, "epsilon": cfg.demo.epsilon},
                    overwrite=cfg.overwrite)
     return demos, policy
+
+
+def tabular_model(env_id: str) -> TabularModel:
+    """The env's transition table, which the built-in expert (value iteration) and the
+    demos need whatever ``env.backend`` steps the agent; a clear error where there is none
+    or where transitions are random."""
+    try:
+        model = TabularModel.from_gym(env_id)
+    except ValueError:
+        raise ValueError(f"env.env_id={env_id}: this pipeline's built-in expert needs a toy-text env with a "
+                         "transition table P (Taxi, CliffWalking, FrozenLake); env.backend does not change that") from None
+    if not model.deterministic:
+        raise ValueError(f"env.env_id={env_id}: its transitions are random (e.g. is_slippery); the built-in "
+                         "expert and the expected-return evaluation need a deterministic env")
+    return model
 
 
 def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
@@ -225,7 +248,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
 
-    model = TabularModel.from_gym(cfg.env.env_id)
+    model = tabular_model(cfg.env.env_id)
     S, A = model.n_states, model.n_actions
     demos, expert = make_taxi_demos(cfg, model, gen)
 
