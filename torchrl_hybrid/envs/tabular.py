@@ -207,5 +207,15 @@ class TabularEnv(EnvBase):
             batch_size=self.batch_size,
         )
 
+    def run_state(self) -> dict[str, torch.Tensor]:
+        """What a bit-exact resume needs: the envs' current states, step counts and the
+        random generator (``load_run_state`` puts them back)."""
+        return {"rng": self._rng.get_state(), "state": self._state.clone(), "elapsed": self._elapsed.clone()}
+
+    def load_run_state(self, state: dict[str, torch.Tensor]) -> None:
+        self._rng.set_state(state["rng"])
+        self._state.copy_(state["state"])
+        self._elapsed.copy_(state["elapsed"])
+
     def _set_seed(self, seed: int | None) -> None:
         self._rng.manual_seed(0 if seed is None else int(seed))

@@ -14,7 +14,8 @@ from torchrl.data import ReplayBuffer
 from torchrl.objectives import LossModule
 from torchrl.trainers import Trainer, TrainerHookBase
 
-__all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "MetricsHook", "NextStateValueHook"]
+__all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "MetricsHook", "NextStateValueHook",
+           "RunStateHook"]
 
 
 class ExpertBatchHook(TrainerHookBase):
@@ -111,14 +112,16 @@ class DelayedCoefficientHook(TrainerHookBase):
         self._set(self.value if on else 0.0)
 
     def state_dict(self) -> dict[str, Any]:
-        return {}
+        return {"current": float(getattr(self.loss, self.name))}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        return
+        if "current" in state_dict:  # a resumed run continues with the coefficient it had
+            self._set(float(state_dict["current"]))
 
     def register(self, trainer: Trainer, name: str = "delayed_coeff") -> None:
         self._trainer = trainer
         trainer.register_op("post_steps", self)
+        trainer.register_module(name, self)
 
 
 class MetricsHook(TrainerHookBase):
@@ -288,3 +291,40 @@ class NextStateValueHook(TrainerHookBase):
 
     def register(self, trainer: Trainer, name: str = "next_state_value") -> None:
         trainer.register_op("batch_process", self)
+
+
+class RunStateHook(TrainerHookBase):
+    """Checkpoints what a bit-exact resume needs beyond weights, optimiser and samplers:
+    torch's global random state, the collector's carried-over tensordict (the envs'
+    current observations and running returns) and the envs' own state, for envs that
+    offer ``run_state`` / ``load_run_state`` (:class:`~torchrl_hybrid.envs.TabularEnv`,
+    also under a ``TransformedEnv``).
+
+    Args:
+        collector: a TorchRL ``Collector`` (its ``_carrier`` is the carried-over tensordict).
+        envs: the envs whose state is saved: the training env, and e.g. an evaluation env.
+    """
+
+    def __init__(self, collector, envs):
+        self.collector = collector
+        self.envs = [getattr(e, "base_env", e) for e in envs]
+        missing = [type(e).__name__ for e in self.envs if not hasattr(e, "run_state")]
+        if missing:
+            raise ValueError(f"RunStateHook: {missing} cannot save their state (no run_state())")
+
+    def state_dict(self) -> dict[str, Any]:
+        carrier = getattr(self.collector, "_carrier", None)
+        return {"torch_rng": torch.get_rng_state(),
+                "carrier": None if carrier is None else carrier.to_dict(),
+                "envs": {str(i): e.run_state() for i, e in enumerate(self.envs)}}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        torch.set_rng_state(torch.as_tensor(state_dict["torch_rng"], dtype=torch.uint8))
+        carrier = getattr(self.collector, "_carrier", None)
+        if carrier is not None and state_dict.get("carrier") is not None:
+            carrier.update(TensorDict(state_dict["carrier"], batch_size=carrier.batch_size, device=carrier.device))
+        for i, e in enumerate(self.envs):
+            e.load_run_state({k: torch.as_tensor(v) for k, v in state_dict["envs"][str(i)].items()})
+
+    def register(self, trainer: Trainer, name: str = "run_state") -> None:
+        trainer.register_module(name, self)

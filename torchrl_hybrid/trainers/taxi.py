@@ -29,7 +29,7 @@ from torchrl_hybrid.data import (
     tabular_state_pairs,
     tabular_trajectories,
 )
-from torchrl_hybrid.envs import BACKENDS, TabularModel, make_toy_text_env
+from torchrl_hybrid.envs import BACKENDS, TabularEnv, TabularModel, make_toy_text_env
 from torchrl_hybrid.experts import expected_return, optimal_policy
 from torchrl_hybrid.modules import (
     DualInverseDynamics,
@@ -38,7 +38,7 @@ from torchrl_hybrid.modules import (
     make_tabular_actor_critic,
 )
 from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
-from torchrl_hybrid.trainers.hooks import MetricsHook
+from torchrl_hybrid.trainers.hooks import MetricsHook, RunStateHook
 from torchrl_hybrid.trainers.hybrid import (
     attach_demonstrations,
     get_variant,
@@ -313,6 +313,8 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
 
     metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator, pbar_keys=("return_mean", "eval_return"))
     metrics.register(trainer)
+    if isinstance(env.base_env, TabularEnv):  # bit-exact resume: random states, envs' states
+        RunStateHook(collector, [env, eval_env]).register(trainer)
     resumed = resume_trainer(trainer, out, dataclasses.asdict(cfg), _RESUME_KEYS) if cfg.resume else 0
     (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=2))
 

@@ -64,6 +64,20 @@ def check_memmap_folder(path: str | Path) -> None:
                                  f"(shape {entry['shape']}, {entry['dtype']}): the file is truncated or damaged")
 
 
+def _recover_checkpoint(ckpt: Path) -> None:
+    """TorchRL's ``Checkpoint`` writes into ``.<name>.stage-*``, moves the old checkpoint
+    to ``.<name>.backup-*``, then the stage into place. A process killed between those
+    two renames leaves no checkpoint but the complete old one as a backup: put it back.
+    An unfinished stage (killed while writing) is left alone; the old checkpoint stands."""
+    if ckpt.exists():
+        return
+    backups = sorted(ckpt.parent.glob(f".{ckpt.name}.backup-*"), key=lambda p: p.stat().st_mtime)
+    if backups:
+        backups[-1].rename(ckpt)
+        print(f"resume: {ckpt} was being replaced when its run stopped; restored the previous one "
+              f"({backups[-1].name})", flush=True)
+
+
 def prepare_out_dir(out: str | Path, *, resume: bool = False, overwrite: bool = False,
                     checkpoint: str = "checkpoint"):
     """Makes ``out`` ready for a run and returns the open lock file (keep it for the
@@ -89,6 +103,8 @@ def prepare_out_dir(out: str | Path, *, resume: bool = False, overwrite: bool = 
         lock.close()
         raise ValueError(f"out_dir {out} is in use by another run (it holds {out / '.lock'}); "
                          "wait for that run or choose another out_dir") from None
+    if resume:
+        _recover_checkpoint(out / checkpoint)
     present = [f for f in RUN_FILES if (out / f).exists()]
     has_ckpt = (out / checkpoint).exists()
     try:
