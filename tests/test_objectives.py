@@ -112,3 +112,83 @@ def test_hybrid_loss_composes_a2c_idm_and_bc():
     # a2c alone accepts a plain collector batch
     a2c = make_hybrid_loss(VARIANTS["a2c"], actor, critic, None)
     assert "loss_objective" in a2c(agent).keys()
+
+
+def _bc_setup(**kw):
+    torch.manual_seed(0)
+    actor, _ = make_tabular_actor_critic(7, 4)
+    idm = DualInverseDynamics(OneHotEncoder(7), 4, d_state=5, d=6, rank=2)
+    return actor, idm, ExpertBCLoss(actor, idm, bc_coeff=2.0, **kw), transitions()
+
+
+def test_bc_soft_labels_are_the_cross_entropy_to_the_inverse_model():
+    actor, idm, loss, td = _bc_setup(labels="soft")
+    out = loss(td.clone())
+    p_i = idm.action_logits(td["observation"], td["next", "observation"]).softmax(-1).detach()
+    log_pi = actor.get_dist(td.select("observation").clone()).logits.log_softmax(-1)
+    assert torch.allclose(out["loss_bc"], 2.0 * -(p_i * log_pi).sum(-1).mean(), atol=1e-6)
+    # two look-alike actions with equal P_i keep equal probability under soft BC
+    pair = TensorDict({"observation": torch.zeros(1, dtype=torch.long)}, [1])
+    opt = torch.optim.SGD(actor.parameters(), lr=0.5)
+    soft = torch.tensor([[0.5, 0.5, 0.0, 0.0]])
+    for _ in range(300):
+        logits = actor.get_dist(pair.clone()).logits
+        l = -(soft * logits.log_softmax(-1)).sum()
+        opt.zero_grad(); l.backward(); opt.step()
+    probs = actor.get_dist(pair.clone()).probs[0]
+    assert abs(float(probs[0] - probs[1])) < 0.02 and float(probs[:2].sum()) > 0.95
+
+
+def test_bc_confidence_gate_clones_only_confident_pairs():
+    actor, idm, loss, td = _bc_setup()
+    p_i = idm.action_logits(td["observation"], td["next", "observation"]).softmax(-1).detach()
+    conf = p_i.max(-1).values
+    threshold = float(conf.median())
+    gated = ExpertBCLoss(actor, idm, bc_coeff=2.0, confidence=threshold)
+    out = gated(td.clone())
+    keep = conf >= threshold
+    logp = actor.get_dist(td.select("observation").clone()).log_prob(p_i.argmax(-1))
+    assert torch.allclose(out["loss_bc"], 2.0 * -logp[keep].mean(), atol=1e-6)
+    assert float(out["bc_kept"]) == pytest.approx(float(keep.float().mean()))
+    nothing = ExpertBCLoss(actor, idm, bc_coeff=2.0, confidence=1.0)(td.clone())
+    assert float(nothing["loss_bc"]) == 0.0 and float(nothing["bc_kept"]) == 0.0
+
+
+def test_bc_entropy_floor_penalises_only_below_the_floor():
+    actor, idm, plain, td = _bc_setup()
+    base = plain(td.clone())
+    h = actor.get_dist(td.select("observation").clone()).entropy()
+    floored = ExpertBCLoss(actor, idm, bc_coeff=2.0, entropy_floor=1.5)(td.clone())
+    assert torch.allclose(floored["loss_bc"], base["loss_bc"] + 2.0 * (1.5 - h).clamp_min(0).mean(), atol=1e-6)
+    low = ExpertBCLoss(actor, idm, bc_coeff=2.0, entropy_floor=1e-3)(td.clone())
+    assert torch.allclose(low["loss_bc"], base["loss_bc"])  # entropy is far above a tiny floor
+    with pytest.raises(ValueError, match="labels='hard'"):
+        ExpertBCLoss(actor, idm, labels="hard")
+    with pytest.raises(ValueError, match="need an inverse model"):
+        ExpertBCLoss(actor, None, labels="soft")
+
+
+def test_inverse_model_ready_hook_switches_bc_on_at_the_held_out_accuracy():
+    from torchrl_hybrid.trainers.hooks import InverseModelReadyHook
+
+    actor, idm, loss, _ = _bc_setup()
+
+    class FakeTrainer:
+        collected_frames = 0
+
+    hook = InverseModelReadyHook(loss, "bc_coeff", 2.0, accuracy=0.5, min_frames=300, smoothing=0.5)
+    hook._trainer = FakeTrainer()
+    assert float(loss.bc_coeff) == 0.0
+    for frames, acc in [(100, 0.2), (200, 0.9), (250, 0.9)]:  # running mean 0.2, 0.55, 0.725 but < 300 frames
+        FakeTrainer.collected_frames = frames
+        hook(1, TensorDict({"idm_accuracy": torch.tensor(acc)}, []))
+        assert float(loss.bc_coeff) == 0.0
+    FakeTrainer.collected_frames = 320
+    hook(1, TensorDict({"idm_accuracy": torch.tensor(0.6)}, []))
+    assert float(loss.bc_coeff) == 2.0 and hook.on_at == 320
+    hook(1, TensorDict({"idm_accuracy": torch.tensor(0.0)}, []))  # for good
+    assert float(loss.bc_coeff) == 2.0
+    other = InverseModelReadyHook(loss, "bc_coeff", 2.0, accuracy=0.5)
+    assert float(loss.bc_coeff) == 0.0
+    other.load_state_dict(hook.state_dict())
+    assert float(loss.bc_coeff) == 2.0 and other.on_at == 320

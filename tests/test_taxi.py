@@ -165,3 +165,15 @@ def test_demos_with_impossible_transitions_are_refused(tmp_path, taxi):
     save_demos(shuffled, tmp_path / "shuffled")
     with pytest.raises(ValueError, match=r"pairs are not transitions of Taxi-v4 under any action"):
         train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "b"), **{"demo.path": str(tmp_path / "shuffled")}))
+
+
+def test_robust_bc_options_run_in_the_pipeline(tmp_path):
+    s = train_taxi(tiny(tmp_path, **{"loss.bc_labels": "soft", "loss.bc_confidence": 0.3,
+                                    "loss.bc_entropy_floor": 0.5, "loss.bc_ready_accuracy": 0.2}))
+    assert s["frames"] == 640
+    import csv
+
+    rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
+    assert "bc_kept" in rows[-1] and "bc_policy_entropy" in rows[-1]
+    with pytest.raises(ValueError, match="labels='hard'"):
+        train_taxi(tiny(tmp_path / "x", **{"loss.bc_labels": "hard"}))

@@ -33,10 +33,20 @@ class ExpertBCLoss(LossModule):
     Keyword Args:
         bc_coeff: weight of the term (authors' Taxi code: 2.0). A buffer, so a
             hook can switch it on later (the paper's Atari start delay).
+        labels: ``"argmax"`` (the paper: clone ``argmax_a P_i(a | s, s')``) or
+            ``"soft"``: the cross-entropy ``-sum_a P_i(a | s, s') log pi(a | s)``, so
+            that actions the inverse model cannot tell apart (e.g. NOOP and FIRE while
+            the ball is in play) share the probability instead of one being erased.
+        confidence: clone only the pairs whose ``max_a P_i`` is at least this (0:
+            every pair); the loss averages over the kept pairs.
+        entropy_floor: adds ``bc_coeff * relu(entropy_floor - H(pi(.|s)))`` on the
+            expert states, so that cloning near-constant labels cannot collapse the
+            policy's entropy below the floor (0: off).
 
     Returns (``forward``): ``loss_bc`` and the detached diagnostics
-    ``bc_log_prob`` (mean log-likelihood of the labels) and ``bc_batch_size``.
-    An empty batch gives a zero loss.
+    ``bc_log_prob`` (mean log-likelihood of the labels), ``bc_batch_size``,
+    ``bc_kept`` (fraction of pairs cloned) and ``bc_policy_entropy`` (on the expert
+    states). An empty batch gives a zero loss.
 
     Examples:
         >>> import torch
@@ -70,7 +80,7 @@ class ExpertBCLoss(LossModule):
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
-    out_keys = ["loss_bc", "bc_log_prob", "bc_batch_size"]
+    out_keys = ["loss_bc", "bc_log_prob", "bc_batch_size", "bc_kept", "bc_policy_entropy"]
 
     def __init__(
         self,
@@ -78,12 +88,24 @@ class ExpertBCLoss(LossModule):
         inverse_model: InverseDynamicsModel | None = None,
         *,
         bc_coeff: float = 1.0,
+        labels: str = "argmax",
+        confidence: float = 0.0,
+        entropy_floor: float = 0.0,
     ):
         super().__init__()
         if not hasattr(actor_network, "get_dist"):
             raise TypeError("actor_network must be a probabilistic policy with a `get_dist` method")
+        if labels not in ("argmax", "soft"):
+            raise ValueError(f"labels={labels!r}: choose argmax (the paper) or soft")
+        if not 0.0 <= confidence <= 1.0:
+            raise ValueError(f"confidence={confidence} must be in [0, 1]")
+        if entropy_floor < 0:
+            raise ValueError(f"entropy_floor={entropy_floor} must be >= 0")
+        if inverse_model is None and (labels != "argmax" or confidence > 0):
+            raise ValueError("soft labels and a confidence gate need an inverse model (they read P_i)")
         self.actor_network = actor_network
         self.inverse_model = inverse_model
+        self.labels_mode, self.confidence, self.entropy_floor = labels, float(confidence), float(entropy_floor)
         self.register_coeff_buffer("bc_coeff", bc_coeff)
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
@@ -110,20 +132,40 @@ class ExpertBCLoss(LossModule):
         n = tensordict.batch_size.numel()
         if n == 0:
             zero = torch.zeros((), device=self.bc_coeff.device)
-            return TensorDict({"loss_bc": zero, "bc_log_prob": zero, "bc_batch_size": zero}, [])
+            return TensorDict({k: zero for k in ("loss_bc", "bc_log_prob", "bc_batch_size", "bc_kept",
+                                                 "bc_policy_entropy")}, [])
         # Only the actor's inputs go in: the actor may write its own "action". The
         # policy runs first so that an encoder shared with the inverse model can hand
         # its features to the (no-grad) labelling pass.
         dist = self.actor_network.get_dist(tensordict.select(*self.actor_network.in_keys))
-        labels = self.labels(tensordict)
-        if self.inverse_model is not None:
+        if self.inverse_model is None:
+            labels, p_i = self.labels(tensordict), None
+        else:
+            with torch.no_grad():
+                p_i = self.inverse_model.action_logits(tensordict.get(self.tensor_keys.observation),
+                                                       tensordict.get(self.tensor_keys.next_observation)).softmax(-1)
+            labels = p_i.argmax(-1)
             tensordict.set(self.tensor_keys.inferred_action, labels)
         log_prob = dist.log_prob(labels)
+        if self.labels_mode == "soft":
+            per_pair = -(p_i * dist.logits.log_softmax(-1)).sum(-1)  # cross-entropy to P_i
+        else:
+            per_pair = -log_prob
+        if p_i is None or self.confidence <= 0:
+            loss, kept = per_pair.mean(), torch.ones_like(per_pair)
+        else:
+            kept = (p_i.max(-1).values >= self.confidence).float()
+            loss = (per_pair * kept).sum() / kept.sum().clamp_min(1.0)
+        entropy = dist.entropy()
+        if self.entropy_floor > 0:
+            loss = loss + (self.entropy_floor - entropy).clamp_min(0.0).mean()
         return TensorDict(
             {
-                "loss_bc": -self.bc_coeff * log_prob.mean(),
+                "loss_bc": self.bc_coeff * loss,
                 "bc_log_prob": log_prob.mean().detach(),
                 "bc_batch_size": torch.tensor(float(n)),
+                "bc_kept": kept.mean().detach(),
+                "bc_policy_entropy": entropy.mean().detach(),
             },
             [],
         )

@@ -90,6 +90,10 @@ class AtariLossConfig:
     idm_embedding_coeff: float = 0.0  # see recipes/config/atari.yaml
     bc_coeff: float = 1.0
     bc_start_frames: int = 100_000
+    bc_labels: str = "argmax"         # argmax (the paper) | soft (cross-entropy to P_i)
+    bc_confidence: float = 0.0         # clone only pairs with max P_i >= this (0: all)
+    bc_entropy_floor: float = 0.0      # penalise policy entropy below this on expert states (0: off)
+    bc_ready_accuracy: float = 0.0     # >0: BC starts once the inverse model's held-out accuracy reaches this
 
 
 @dataclass
@@ -256,7 +260,8 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
     loss = make_hybrid_loss(
         variant, actor, critic, inverse_model, gamma=lc.gamma, critic_coeff=lc.critic_coeff,
         entropy_coeff=lc.entropy_coeff, idm_action_coeff=lc.idm_action_coeff,
-        idm_embedding_coeff=lc.idm_embedding_coeff, bc_coeff=lc.bc_coeff,
+        idm_embedding_coeff=lc.idm_embedding_coeff, bc_coeff=lc.bc_coeff, bc_labels=lc.bc_labels,
+        bc_confidence=lc.bc_confidence, bc_entropy_floor=lc.bc_entropy_floor,
         value_estimator_kwargs={"skip_existing": True},  # values come from NextStateValueHook
     ).to(device)  # moves the shared encoder, heads and inverse model with it
     optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
@@ -289,7 +294,8 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
         sampler = (CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
                    if cfg.demo.curriculum else None)
         attach_demonstrations(trainer, loss, demos, sampler=sampler, batch_size=cfg.demo.batch_size,
-                              bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames, device=device)
+                              bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
+                              bc_ready_accuracy=lc.bc_ready_accuracy, device=device)
 
     acc_pairs = None
     if inverse_model is not None and demos is not None and EXPERT_ACTION_KEY in demos.keys():

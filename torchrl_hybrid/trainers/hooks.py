@@ -14,8 +14,8 @@ from torchrl.data import ReplayBuffer
 from torchrl.objectives import LossModule
 from torchrl.trainers import Trainer, TrainerHookBase
 
-__all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "MetricsHook", "NextStateValueHook",
-           "RunStateHook"]
+__all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "InverseModelReadyHook", "MetricsHook",
+           "NextStateValueHook", "RunStateHook"]
 
 
 class ExpertBatchHook(TrainerHookBase):
@@ -121,6 +121,68 @@ class DelayedCoefficientHook(TrainerHookBase):
     def register(self, trainer: Trainer, name: str = "delayed_coeff") -> None:
         self._trainer = trainer
         trainer.register_op("post_steps", self)
+        trainer.register_module(name, self)
+
+
+class InverseModelReadyHook(TrainerHookBase):
+    """Keeps a loss coefficient (the BC term's) at 0 until the inverse model is ready,
+    then sets it to ``value`` for good.
+
+    Ready means: the running mean (exponential, weight ``smoothing`` on the newest
+    batch) of the inverse model's accuracy on the agent's own transitions reaches
+    ``accuracy``, and at least ``min_frames`` frames were collected. That accuracy is
+    ``idm_accuracy`` of the inverse-dynamics loss, computed on each batch before the
+    update that trains on it (so held out) against the agent's own actions: no
+    expert label is read.
+
+    Args:
+        loss: the loss module that owns the coefficient buffer.
+        name: the buffer's name, e.g. ``"bc_coeff"``.
+        value: the coefficient once switched on.
+        accuracy: the running accuracy to reach.
+        min_frames: frames before switching on, whatever the accuracy.
+        smoothing: weight of the newest batch in the running mean.
+        accuracy_key: the loss output holding the batch accuracy.
+    """
+
+    def __init__(self, loss: LossModule, name: str, value: float, accuracy: float, *, min_frames: int = 0,
+                 smoothing: float = 0.05, accuracy_key: str = "idm_accuracy"):
+        if not isinstance(getattr(loss, name, None), torch.Tensor):
+            raise ValueError(f"{type(loss).__name__} has no coefficient buffer {name!r}")
+        if not 0.0 < accuracy <= 1.0:
+            raise ValueError(f"accuracy={accuracy} must be in (0, 1]")
+        self.loss, self.name, self.value = loss, name, float(value)
+        self.accuracy, self.min_frames, self.smoothing, self.accuracy_key = (
+            float(accuracy), int(min_frames), float(smoothing), accuracy_key)
+        self.running: float | None = None
+        self.on_at: int | None = None  # frames when it switched on
+        self._trainer: Trainer | None = None
+        getattr(self.loss, self.name).fill_(0.0)
+
+    def __call__(self, optim_steps: int, average_losses: TensorDictBase | None) -> dict[str, Any] | None:
+        if self.on_at is not None or average_losses is None or self.accuracy_key not in average_losses.keys():
+            return None
+        acc = float(average_losses.get(self.accuracy_key))
+        self.running = acc if self.running is None else (1 - self.smoothing) * self.running + self.smoothing * acc
+        frames = self._trainer.collected_frames
+        if self.running >= self.accuracy and frames >= self.min_frames:
+            self.on_at = int(frames)
+            getattr(self.loss, self.name).fill_(self.value)
+        return None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"running": -1.0 if self.running is None else self.running,
+                "on_at": -1 if self.on_at is None else self.on_at}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        running, on_at = float(state_dict["running"]), int(state_dict["on_at"])
+        self.running = None if running < 0 else running
+        self.on_at = None if on_at < 0 else on_at
+        getattr(self.loss, self.name).fill_(self.value if self.on_at is not None else 0.0)
+
+    def register(self, trainer: Trainer, name: str = "inverse_model_ready") -> None:
+        self._trainer = trainer
+        trainer.register_op("post_optim_complete_log", self)
         trainer.register_module(name, self)
 
 

@@ -78,6 +78,9 @@ def make_hybrid_loss(
     idm_embedding_coeff: float = 0.1,
     idm_forward_coeff: float = 0.0,
     bc_coeff: float = 2.0,
+    bc_labels: str = "argmax",
+    bc_confidence: float = 0.0,
+    bc_entropy_floor: float = 0.0,
     expert_action_key: str = "expert_action",
     value_estimator_kwargs: dict | None = None,
 ) -> HybridLoss:
@@ -116,9 +119,10 @@ def make_hybrid_loss(
             idm_loss = InverseDynamicsLoss(inverse_model, action_coeff=idm_action_coeff)
     bc_loss = None
     if variant.bc == "inferred":
-        bc_loss = ExpertBCLoss(actor, inverse_model, bc_coeff=bc_coeff)
+        bc_loss = ExpertBCLoss(actor, inverse_model, bc_coeff=bc_coeff, labels=bc_labels, confidence=bc_confidence,
+                               entropy_floor=bc_entropy_floor)
     elif variant.bc == "true":
-        bc_loss = ExpertBCLoss(actor, None, bc_coeff=bc_coeff)
+        bc_loss = ExpertBCLoss(actor, None, bc_coeff=bc_coeff, entropy_floor=bc_entropy_floor)
         bc_loss.set_keys(action=expert_action_key)
     return HybridLoss(rl_loss, idm_loss, bc_loss)
 
@@ -216,6 +220,7 @@ def attach_demonstrations(
     batch_size: int = 32,
     bc_coeff: float = 1.0,
     bc_start_frames: int = 0,
+    bc_ready_accuracy: float = 0.0,
     include_expert_actions: bool = False,
     device: str | torch.device | None = None,
 ):
@@ -223,15 +228,27 @@ def attach_demonstrations(
     (``sampler`` = rho; its storage on ``device``), the :class:`ExpertBatchHook`, a
     :class:`CurriculumHook` when the sampler is a curriculum, and a
     :class:`DelayedCoefficientHook` when the BC term starts after
-    ``bc_start_frames``. Returns the buffer."""
+    ``bc_start_frames``, or an :class:`InverseModelReadyHook` when it starts once the
+    inverse model's held-out accuracy on the agent's transitions reaches
+    ``bc_ready_accuracy`` (and not before ``bc_start_frames``). Returns the buffer."""
     from torchrl_hybrid.data import CurriculumSampler, make_expert_buffer
-    from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook
+    from torchrl_hybrid.trainers.hooks import (
+        CurriculumHook,
+        DelayedCoefficientHook,
+        ExpertBatchHook,
+        InverseModelReadyHook,
+    )
 
     buffer = make_expert_buffer(demos, sampler=sampler, include_expert_actions=include_expert_actions, device=device)
     ExpertBatchHook(buffer, batch_size).register(trainer)
     if isinstance(sampler, CurriculumSampler):
         CurriculumHook(sampler).register(trainer)
-    if bc_start_frames > 0:
+    if bc_ready_accuracy > 0:
+        if loss.inverse_dynamics_loss is None:
+            raise ValueError("bc_ready_accuracy needs an inverse model (it measures the inverse model's accuracy)")
+        InverseModelReadyHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_ready_accuracy,
+                              min_frames=bc_start_frames).register(trainer)
+    elif bc_start_frames > 0:
         DelayedCoefficientHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_start_frames).register(trainer)
     return buffer
 

@@ -98,6 +98,10 @@ class LossConfig:
     idm_forward_coeff: float = 0.0
     bc_coeff: float = 2.0
     bc_start_frames: int = 0
+    bc_labels: str = "argmax"         # argmax (the paper) | soft (cross-entropy to P_i)
+    bc_confidence: float = 0.0         # clone only pairs with max P_i >= this (0: all)
+    bc_entropy_floor: float = 0.0      # penalise policy entropy below this on expert states (0: off)
+    bc_ready_accuracy: float = 0.0     # >0: BC starts once the inverse model's held-out accuracy reaches this
 
 
 @dataclass
@@ -276,7 +280,8 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
         variant, actor, critic, inverse_model,
         gamma=lc.gamma, critic_coeff=lc.critic_coeff, entropy_coeff=lc.entropy_coeff,
         idm_action_coeff=lc.idm_action_coeff, idm_embedding_coeff=lc.idm_embedding_coeff,
-        idm_forward_coeff=lc.idm_forward_coeff, bc_coeff=lc.bc_coeff, expert_action_key=EXPERT_ACTION_KEY,
+        idm_forward_coeff=lc.idm_forward_coeff, bc_coeff=lc.bc_coeff, bc_labels=lc.bc_labels,
+        bc_confidence=lc.bc_confidence, bc_entropy_floor=lc.bc_entropy_floor, expert_action_key=EXPERT_ACTION_KEY,
     ).to(device)
     optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
 
@@ -302,6 +307,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
                    }[cfg.demo.rho]()
         attach_demonstrations(trainer, loss, demos, sampler=sampler, batch_size=cfg.demo.batch_size,
                               bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
+                              bc_ready_accuracy=lc.bc_ready_accuracy,
                               include_expert_actions=variant.bc == "true", device=device)
 
     def evaluator(episodes_env=eval_env):
