@@ -225,3 +225,17 @@ def test_files_that_are_not_atari_checkpoints_are_named(tmp_path):
         load_expert(tmp_path / "random.pt")
     with pytest.raises(ValueError, match=r"taxi.pt is not an Atari checkpoint: it lacks \['n_actions', 'preprocessing'\]"):
         load_expert(tmp_path / "taxi.pt")
+
+
+def test_atari_runs_and_demos_do_not_overwrite_results(tmp_path):
+    from torchrl_hybrid.trainers.atari import record_demos
+
+    train_atari(_tiny(tmp_path / "run", "cpu"))
+    with pytest.raises(ValueError, match="holds a finished run"):
+        train_atari(_tiny(tmp_path / "run", "cpu", seed=1))
+    assert train_atari(_tiny(tmp_path / "run", "cpu", seed=1, overwrite=True))["seed"] == 1
+    (tmp_path / "demos").mkdir()
+    (tmp_path / "demos" / "other.txt").write_text("someone else's")
+    with pytest.raises(ValueError, match="already exists and is not empty; pass overwrite=true"):
+        record_demos(tmp_path / "run" / "model.pt", tmp_path / "demos", num_trajectories=1, progress=False)
+    assert (tmp_path / "demos" / "other.txt").read_text() == "someone else's"

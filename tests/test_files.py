@@ -163,3 +163,11 @@ def test_taxi_resume_is_bit_exact(tmp_path, kw):
     for k in last[0]:
         if k not in ("return_mean", "episodes", "time_s"):
             assert last[0][k] == last[1][k], k
+
+
+def test_a_truncated_checkpoint_manifest_is_named(tmp_path):
+    train_taxi(tiny(tmp_path))
+    manifest = tmp_path / "checkpoint" / "manifest.json"
+    manifest.write_text(manifest.read_text()[:40])
+    with pytest.raises(ValueError, match=r"checkpoint/manifest.json: malformed checkpoint manifest"):
+        train_taxi(tiny(tmp_path, resume=True, total_frames=1280))
