@@ -345,6 +345,12 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
         run_compare(CompareConfig(games=["Pong"], out_dir=str(tmp_path), demos={"Pong": str(tmp_path)}))
     with pytest.raises(ValueError, match="unknown Atari variant"):
         run_compare(CompareConfig(variants=["ppo"], out_dir=str(tmp_path)))
+    # another comparison drawn beside this one's runs, under labels, without running it again
+    beside = CompareConfig(games=["Pong"], variants=["a2c"], seeds=[0], total_frames=256, out_dir=str(tmp_path / "b"),
+                           workers=1, base=base, baselines={"first": str(tmp_path)}, label="again")
+    table = run_compare(beside)["Pong"]
+    assert [t["variant"] for t in table] == ["a2c (again)", "a2c (first)", "hybrid_dual (first)"]
+    assert table[1]["seeds"] == 1 and table[1]["frames_per_s"] == result["Pong"][0]["frames_per_s"]
 
 
 def test_fused_collection_policy_equals_actor_and_critic():

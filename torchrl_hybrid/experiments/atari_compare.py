@@ -28,7 +28,10 @@ __all__ = ["CompareConfig", "run_compare", "analyse_compare", "load_runs"]
 @dataclass
 class CompareConfig:
     """What to run. ``demos`` maps a game to its demo folder (needed by every
-    variant but ``a2c``); ``base`` holds :class:`AtariConfig` overrides for every run."""
+    variant but ``a2c``); ``base`` holds :class:`AtariConfig` overrides for every run;
+    ``baselines`` maps a label to another comparison's ``out_dir`` whose finished runs
+    of the same games are drawn and tabulated beside these (as ``<variant> (<label>)``),
+    without being run again."""
 
     games: Sequence[str] = ("Pong", "Breakout")
     variants: Sequence[str] = ("a2c", "hybrid_dual")
@@ -38,6 +41,8 @@ class CompareConfig:
     demos: dict = field(default_factory=dict)
     workers: int = 2
     base: dict = field(default_factory=dict)
+    baselines: dict = field(default_factory=dict)
+    label: str = ""  # shown after this comparison's variant names when baselines are drawn beside
 
     def validate(self) -> "CompareConfig":
         from torchrl_hybrid.trainers.atari import ATARI_VARIANTS
@@ -48,6 +53,9 @@ class CompareConfig:
             raise ValueError(f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)}")
         if self.workers < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers}")
+        for label, folder in self.baselines.items():
+            if not Path(folder).is_dir():
+                raise FileNotFoundError(f"baselines.{label}: {folder!r} is not a folder written by atari_compare")
         if any(get_variant(v).bc is not None for v in self.variants):
             missing = [g for g in self.games if not self.demos.get(g)]
             if missing:
@@ -118,19 +126,26 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
     return analyse_compare(cfg)
 
 
+def _load_run(d: Path, seed: int) -> dict:
+    with open(d / "metrics.csv") as f:
+        rows = [{k: float(v) if v not in ("", None) else math.nan for k, v in r.items()} for r in csv.DictReader(f)]
+    return {"seed": seed, "rows": rows, "summary": json.loads((d / "summary.json").read_text())}
+
+
 def load_runs(cfg: CompareConfig, game: str) -> dict[str, list[dict]]:
-    """variant -> the finished runs of ``game`` (metrics rows and summary)."""
+    """variant -> the finished runs of ``game`` (metrics rows and summary), then the
+    finished runs of ``cfg.baselines`` as ``"<variant> (<label>)"``."""
     out: dict[str, list[dict]] = {}
     for variant in cfg.variants:
         for seed in cfg.seeds:
             d = _run_dir(cfg, game, variant, seed)
-            if not (d / "summary.json").exists():
-                continue
-            with open(d / "metrics.csv") as f:
-                rows = [{k: float(v) if v not in ("", None) else math.nan for k, v in r.items()}
-                        for r in csv.DictReader(f)]
-            out.setdefault(variant, []).append(
-                {"seed": seed, "rows": rows, "summary": json.loads((d / "summary.json").read_text())})
+            if (d / "summary.json").exists():
+                out.setdefault(f"{variant} ({cfg.label})" if cfg.label else variant, []).append(_load_run(d, seed))
+    for label, folder in cfg.baselines.items():
+        for d in sorted((Path(folder) / game).glob("*_s*")):
+            variant, _, seed = d.name.rpartition("_s")
+            if (d / "summary.json").exists() and seed.isdigit():
+                out.setdefault(f"{variant} ({label})", []).append(_load_run(d, int(seed)))
     return out
 
 
