@@ -18,20 +18,9 @@ import time
 
 import numpy as np
 
+from torchrl_hybrid.utils.stats import permutation_p
+
 logging.getLogger("torchrl").setLevel(logging.WARNING)
-
-
-def permutation_p(a, b, n: int = 20000, seed: int = 0) -> float:
-    """Two-sided permutation-test p-value for mean(a) == mean(b)."""
-    rng = np.random.default_rng(seed)
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    obs = abs(a.mean() - b.mean())
-    both = np.concatenate([a, b])
-    hits = 0
-    for _ in range(n):
-        rng.shuffle(both)
-        hits += abs(both[: len(a)].mean() - both[len(a):].mean()) >= obs - 1e-12
-    return (hits + 1) / (n + 1)
 
 
 def compare(variant: str, seeds: int, frames: int, workers_note: str = "") -> dict:

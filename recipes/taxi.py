@@ -18,8 +18,8 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
 
 
-@hydra.main(config_path="config", config_name="taxi", version_base=None)
-def main(cfg: DictConfig) -> None:
+def run(cfg: DictConfig) -> None:
+    """Trains one run from a Hydra config (also the body of recipes/train.py)."""
     raw = OmegaConf.to_container(cfg, resolve=True)
     raw.pop("hydra", None)
     try:
@@ -38,12 +38,18 @@ def main(cfg: DictConfig) -> None:
     out = config.out_dir
     print(
         f"\n{summary['variant']} seed {summary['seed']}: final greedy return "
-        f"{summary['final_return']:.2f} over {summary['final_eval_episodes']} episodes "
-        f"(optimal {summary['optimal_return']:.2f})"
-        + (f", inverse-model accuracy on the demos {summary['idm_accuracy']:.1%}" if summary["idm_accuracy"] is not None else "")
+        f"{summary['final_return']:.2f} over {summary['final_eval_episodes']} episodes"
+        + (f" (expert {summary['optimal_return']:.2f})" if summary["optimal_return"] is not None else "")
+        + (f", inverse-model accuracy on the demos {summary['idm_accuracy_expert']:.1%}"
+           if summary["idm_accuracy_expert"] is not None else "")
         + f"\n{summary['frames']} frames in {summary['train_time_s']:.0f} s ({summary['frames_per_s']:.0f} frames/s)"
         f"\nplot: {out}/learning_curve.png   curve: {out}/metrics.csv   summary: {out}/summary.json"
     )
+
+
+@hydra.main(config_path="config", config_name="taxi", version_base=None)
+def main(cfg: DictConfig) -> None:
+    run(cfg)
 
 
 if __name__ == "__main__":

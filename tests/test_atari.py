@@ -331,11 +331,12 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
                         out_dir=str(tmp_path), demos={"Pong": str(pong_demos / "demos")}, workers=1, base=base)
     result = run_compare(cfg)
     assert [t["variant"] for t in result["Pong"]] == ["a2c", "hybrid_dual"]
-    assert result["Pong"][0]["idm_accuracy"] is None and 0 <= result["Pong"][1]["idm_accuracy"] <= 1
+    assert result["Pong"][0]["idm_accuracy_expert"] is None and 0 <= result["Pong"][1]["idm_accuracy_expert"] <= 1
     for f in ("curves.csv", "summary.csv", "comparison.png"):
         assert (tmp_path / "Pong" / f).stat().st_size > 0
     rows = (tmp_path / "Pong" / "curves.csv").read_text().splitlines()
-    assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy,entropy,loss_bc" and len(rows) == 1 + 2 * 3  # 3 logged points a run
+    assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy_expert,idm_accuracy,entropy,loss_bc"
+    assert len(rows) == 1 + 2 * 3  # 3 logged points a run
     capsys.readouterr()
     run_compare(cfg)  # finished runs are not run again
     assert "0 run(s) to do" in capsys.readouterr().out

@@ -21,13 +21,33 @@ def test_dual_model_equals_the_explicit_tensor_formula():
     h_a = idm.action_embedding(a)
     score = torch.einsum("bi,ikj,bk,bj->b", h_s, T, h_a, h_ds)
     assert torch.allclose(idm.score(s, a, s2), score, atol=1e-5)
-    # both predictions come from the same tensor (its slices are symmetric in k)
+    # both predictions contract the same tensor over its first and last slots
     assert torch.allclose(terms["h_a_hat"], torch.einsum("bi,ikj,bj->bk", h_s, T, h_ds), atol=1e-5)
     assert torch.allclose(terms["h_ds_hat"], torch.einsum("bi,ikj,bj->bk", h_s, T, h_a), atol=1e-5)
     assert torch.allclose(terms["action_logits"], idm.action_head(terms["h_a_hat"]))
     # h_ds = W_ds (h_s' - h_s), h_s = W_s one_hot(s)
     assert torch.allclose(h_s, idm.W_s.weight[:, s].T)
     assert torch.allclose(h_ds, idm.W_ds(idm.W_s.weight[:, s2].T - idm.W_s.weight[:, s].T), atol=1e-6)
+
+
+def test_forward_score_is_not_the_score_because_T_is_not_symmetric():
+    # the docstring's claim: <h_ds, F(s, a)> = T x1 h_s x2 h_ds x3 h_a, which is the score
+    # T x1 h_s x2 h_a x3 h_ds only where T[:, k, j] = T[:, j, k]; the shared M_r, N_r do not make it so
+    torch.manual_seed(0)
+    idm = small_dual()
+    s, s2, a = torch.tensor([0, 3, 6]), torch.tensor([1, 3, 2]), torch.tensor([2, 0, 3])
+    T = idm.full_tensor()
+    h_s, h_ds = idm.embed(s, s2)
+    h_a = idm.action_embedding(a)
+    assert torch.allclose(idm.forward_score(s, a, s2), torch.einsum("bi,ikj,bk,bj->b", h_s, T, h_ds, h_a), atol=1e-5)
+    assert not torch.allclose(idm.forward_score(s, a, s2), idm.score(s, a, s2), atol=1e-3)
+    assert not torch.allclose(T, T.transpose(1, 2), atol=1e-3)
+    # N_r = I makes T[i, k, j] = sum_r M_r[i, k] [j == k] symmetric in k, j: then the two views agree
+    with torch.no_grad():
+        idm.N.copy_(torch.eye(6).expand(idm.rank, 6, 6))
+    T = idm.full_tensor()
+    assert torch.allclose(T, T.transpose(1, 2))
+    assert torch.allclose(idm.forward_score(s, a, s2), idm.score(s, a, s2), atol=1e-5)
 
 
 def test_both_directions_share_the_same_factors():

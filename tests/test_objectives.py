@@ -192,3 +192,56 @@ def test_inverse_model_ready_hook_switches_bc_on_at_the_held_out_accuracy():
     assert float(loss.bc_coeff) == 0.0
     other.load_state_dict(hook.state_dict())
     assert float(loss.bc_coeff) == 2.0 and other.on_at == 320
+
+
+def test_coefficients_are_schedulable_buffers_and_losses_are_not_functional():
+    from torchrl_hybrid.objectives import PolicyEntropyLoss
+    actor, _ = make_tabular_actor_critic(7, 4)
+    idm = DualInverseDynamics(OneHotEncoder(7), 4, d_state=5, d=6)
+    losses = {"action_coeff": DualInverseDynamicsLoss(idm), "embedding_coeff": DualInverseDynamicsLoss(idm),
+              "bc_coeff": ExpertBCLoss(actor, idm), "entropy_coeff": PolicyEntropyLoss(actor)}
+    for name, loss in losses.items():
+        buf = getattr(loss, name)
+        setattr(loss, name, 0.25)  # TorchRL's convention: an in-place update of the buffer
+        assert getattr(loss, name) is buf and float(buf) == 0.25 and name in dict(loss.named_buffers())
+        assert loss.functional is False
+    # plain submodules: the loss trains the very parameters the caller holds
+    assert losses["bc_coeff"].inverse_model is idm and losses["bc_coeff"].actor_network is actor
+    assert {id(p) for p in losses["action_coeff"].parameters()} == {id(p) for p in idm.parameters()}
+
+
+def test_hooks_refuse_a_coefficient_that_is_not_schedulable():
+    from torchrl.objectives import LossModule
+    from torchrl_hybrid.trainers.hooks import DelayedCoefficientHook
+
+    class Plain(LossModule):
+        def __init__(self):
+            super().__init__()
+            self.register_coeff_buffer("w", 1.0)
+
+    with pytest.raises(ValueError, match="_schedulable_buffers"):
+        DelayedCoefficientHook(Plain(), "w", 1.0, 10)
+    with pytest.raises(ValueError, match="no coefficient buffer 'nope'"):
+        DelayedCoefficientHook(Plain(), "nope", 1.0, 10)
+    actor, _ = make_tabular_actor_critic(7, 4)
+    bc = ExpertBCLoss(actor, DualInverseDynamics(OneHotEncoder(7), 4, d_state=5, d=6), bc_coeff=2.0)
+    DelayedCoefficientHook(bc, "bc_coeff", 2.0, 10)
+    assert float(bc.bc_coeff) == 0.0
+
+
+def test_a_tensordict_module_wrapped_inverse_model_is_accepted_and_names_its_keys():
+    from tensordict.nn import TensorDictModule
+    idm = DualInverseDynamics(OneHotEncoder(7), 4, d_state=5, d=6)
+    wrapped = TensorDictModule(idm, in_keys=["s", "s_next"], out_keys=["idm_logits"])
+    td = transitions()
+    td2 = TensorDict({"s": td["observation"], "s_next": td["next", "observation"], "action": td["action"]}, [12])
+    plain, via = DualInverseDynamicsLoss(idm)(td), DualInverseDynamicsLoss(wrapped)(td2)
+    for k in plain.keys():
+        assert torch.equal(plain[k], via[k]), k
+    actor, _ = make_tabular_actor_critic(7, 4)
+    bc = ExpertBCLoss(actor, wrapped)
+    assert bc.inverse_model is idm and bc.tensor_keys.next_observation == "s_next"
+    with pytest.raises(TypeError, match="TensorDictModule wrapping one"):
+        InverseDynamicsLoss(torch.nn.Linear(3, 4))
+    with pytest.raises(ValueError, match="exactly two in_keys"):
+        InverseDynamicsLoss(TensorDictModule(idm, in_keys=["s"], out_keys=["x"]))

@@ -38,7 +38,9 @@ def test_every_variant_runs_and_writes_its_outputs(tmp_path, variant):
     rows = list(csv.DictReader((out / "metrics.csv").open()))
     assert len(rows) >= 2 and int(rows[-1]["frames"]) == 640
     assert {"frames", "return_mean", "eval_return"} <= set(rows[0])
-    assert ("idm_accuracy" in rows[0]) == (VARIANTS[variant].inverse_model is not None)
+    has_idm = VARIANTS[variant].inverse_model is not None
+    # one meaning per column: the loss's accuracy on the agent's batch, the accuracy on the demo pairs
+    assert ("idm_accuracy" in rows[0]) == ("idm_accuracy_expert" in rows[0]) == has_idm
     s = json.loads((out / "summary.json").read_text())
     assert s["variant"] == variant and s["frames"] == 640 and s["final_eval_episodes"] == 8
     assert s == json.loads(json.dumps(summary))
@@ -67,7 +69,7 @@ def test_hybrid_never_reads_true_expert_actions(tmp_path):
     w1 = torch.load(tmp_path / "a" / "model.pt", weights_only=False)["actor"]
     w2 = torch.load(tmp_path / "b" / "model.pt", weights_only=False)["actor"]
     assert all(torch.equal(w1[k], w2[k]) for k in w1)
-    assert s1["idm_accuracy"] != s2["idm_accuracy"]  # only the diagnostic sees the key
+    assert s1["idm_accuracy_expert"] != s2["idm_accuracy_expert"]  # only the diagnostic sees the key
 
 
 @pytest.mark.parametrize(
@@ -83,7 +85,8 @@ def test_hybrid_never_reads_true_expert_actions(tmp_path):
         ({"seed": "abc"}, "seed='abc' must be an integer"),
         ({"rank": "abc"}, "rank='abc' must be an integer"),
         ({"demo.eta": "abc"}, "demo.eta='abc' must be a number"),
-        ({"env.env_id": "CartPole-v1", "env.backend": "gym"}, "CartPole-v1: this pipeline's built-in expert needs a toy-text"),
+        ({"env.env_id": "CartPole-v1", "env.backend": "gym"}, "demo.rho=visited matches expert pairs to visited discrete"),
+        ({"env.env_id": "Blackjack-v1"}, "observations are Tuple"),
         ({"env.env_id": "CliffWalkingSlippery-v1"}, "CliffWalkingSlippery-v1: its transitions are random"),
         ({"device": "cuda", "engine": "batched"}, "engine=batched runs on the CPU only"
          if torch.cuda.is_available() else "sees no CUDA GPU"),
@@ -136,7 +139,7 @@ def test_hybrid_dual_learns_taxi_with_the_default_budget(tmp_path):
     cfg.logger.final_eval_episodes = 300
     s = train_taxi(cfg)
     assert s["final_return"] >= 7.0
-    assert s["idm_accuracy"] >= 0.80
+    assert s["idm_accuracy_expert"] >= 0.80
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
@@ -177,3 +180,56 @@ def test_robust_bc_options_run_in_the_pipeline(tmp_path):
     assert "bc_kept" in rows[-1] and "bc_policy_entropy" in rows[-1]
     with pytest.raises(ValueError, match="labels='hard'"):
         train_taxi(tiny(tmp_path / "x", **{"loss.bc_labels": "hard"}))
+
+
+def test_frozenlake_8x8_through_env_kwargs_with_its_own_optimal_return(tmp_path):
+    kw = {"env.env_id": "FrozenLake-v1", "env.kwargs": {"map_name": "8x8", "is_slippery": False},
+          "env.max_episode_steps": 100}
+    s = train_taxi(tiny(tmp_path, **kw))
+    assert s["optimal_return"] == 1.0 and s["frames"] == 640  # the expert's own evaluation, not assumed
+    assert s["config"]["env"]["kwargs"] == {"map_name": "8x8", "is_slippery": False}
+    with pytest.raises(ValueError, match="does not end an episode.*expert_gamma"):
+        train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "g1"), **kw, **{"demo.expert_gamma": 1.0}))
+    with pytest.raises(ValueError, match="random"):  # slippery: random transitions, refused before training
+        train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "slip"),
+                        **{**kw, "env.kwargs": {"map_name": "8x8", "is_slippery": True}}))
+
+
+def test_vector_observations_cartpole_expert_checkpoint_demos_and_hybrid(tmp_path):
+    """CartPole (no table P): an A2C run is the expert, its checkpoint is played to record
+    the state-only demos, and the hybrid agent trains on them with MLP encoders."""
+    cp = {"env.env_id": "CartPole-v1", "env.max_episode_steps": 200, "demo.rho": "uniform",
+          "demo.form": "trajectories", "demo.num_trajectories": 4, "loss.n_steps": 5, "d_state": 16, "d": 16,
+          "encoder.hidden": 16}
+    expert = train_taxi(tiny(tmp_path, variant="a2c", out_dir=str(tmp_path / "expert"), **cp))
+    assert expert["optimal_return"] is None and expert["idm_accuracy_expert"] is None
+    ckpt = str(tmp_path / "expert" / "model.pt")
+    s = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "hybrid"),
+                        **{**cp, "demo.expert": ckpt, "demo.save_path": str(tmp_path / "demos")}))
+    # the optimum is the expert's own greedy return on the same final episodes, never assumed
+    assert s["optimal_return"] == pytest.approx(expert["final_return"])
+    assert 0.0 <= s["idm_accuracy_expert"] <= 1.0 and s["frames"] == 640
+    rows = list(csv.DictReader((tmp_path / "hybrid" / "metrics.csv").open()))
+    assert {"idm_accuracy", "idm_accuracy_expert", "loss_bc"} <= set(rows[0])
+    # recorded demos: whole expert episodes, pairs within them, true actions kept for diagnostics only
+    from torchrl_hybrid.data import load_demos
+    demos, meta = load_demos(tmp_path / "demos")
+    assert meta["env_id"] == "CartPole-v1" and len(meta["returns"]) == 4
+    assert demos["observation"].shape[1:] == (4,) and int(demos["trajectory"].max()) == 3
+    assert demos["expert_action"].dtype == torch.int64
+    # the saved demos replace the expert
+    s2 = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "from_file"), **{**cp, "demo.path": str(tmp_path / "demos")}))
+    assert s2["optimal_return"] is None and s2["frames"] == 640
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({}, "no built-in expert.*demo.expert"),
+    ({"demo.rho": "visited", "demo.expert": "x"}, "demo.rho=uniform"),
+    ({"demo.eta": 0.5, "demo.expert": "x"}, "table P"),
+    ({"demo.expert": "/nope/model.pt"}, "no such checkpoint"),
+    ({"env.env_id": "MountainCarContinuous-v0"}, "discrete actions"),
+])
+def test_vector_observation_errors_name_the_fix(tmp_path, kw, match):
+    cfg = tiny(tmp_path, **{"env.env_id": "CartPole-v1", "env.max_episode_steps": 200, "demo.rho": "uniform", **kw})
+    with pytest.raises((ValueError, FileNotFoundError), match=match):
+        train_taxi(cfg)

@@ -1,5 +1,5 @@
 """Environments: an exact batched tensor copy of toy-text envs, and builders."""
-from torchrl_hybrid.envs.builders import BACKENDS, make_toy_text_env
+from torchrl_hybrid.envs.builders import BACKENDS, make_gym_env, make_toy_text_env, observation_kind
 from torchrl_hybrid.envs.tabular import TabularEnv, TabularModel
 
-__all__ = ["BACKENDS", "TabularEnv", "TabularModel", "make_toy_text_env"]
+__all__ = ["BACKENDS", "TabularEnv", "TabularModel", "make_gym_env", "make_toy_text_env", "observation_kind"]

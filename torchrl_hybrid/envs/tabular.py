@@ -54,13 +54,14 @@ class TabularModel:
         return self.next_state.shape[2] == 1
 
     @classmethod
-    def from_gym(cls, env_id_or_env: str | gym.Env) -> "TabularModel":
-        """Reads ``P`` and the start distribution of a gymnasium env.
+    def from_gym(cls, env_id_or_env: str | gym.Env, **env_kwargs) -> "TabularModel":
+        """Reads ``P`` and the start distribution of a gymnasium env
+        (``gym.make(env_id, **env_kwargs)``, e.g. ``map_name="8x8", is_slippery=False``).
 
         Raises:
             ValueError: the env publishes no transition table ``P``.
         """
-        env = gym.make(env_id_or_env) if isinstance(env_id_or_env, str) else env_id_or_env
+        env = gym.make(env_id_or_env, **env_kwargs) if isinstance(env_id_or_env, str) else env_id_or_env
         base = env.unwrapped
         P = getattr(base, "P", None)
         if P is None:

@@ -22,6 +22,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
+from torchrl_hybrid.utils.stats import mean_ci
+
 __all__ = ["CompareConfig", "run_compare", "analyse_compare", "load_runs"]
 
 
@@ -128,8 +131,10 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
 
 def _load_run(d: Path, seed: int) -> dict:
     with open(d / "metrics.csv") as f:
-        rows = [{k: float(v) if v not in ("", None) else math.nan for k, v in r.items()} for r in csv.DictReader(f)]
-    return {"seed": seed, "rows": rows, "summary": json.loads((d / "summary.json").read_text())}
+        rows = [upgrade_accuracy_keys({k: float(v) if v not in ("", None) else math.nan for k, v in r.items()})
+                for r in csv.DictReader(f)]
+    summary = upgrade_accuracy_keys(json.loads((d / "summary.json").read_text()))
+    return {"seed": seed, "rows": rows, "summary": summary}
 
 
 def load_runs(cfg: CompareConfig, game: str) -> dict[str, list[dict]]:
@@ -163,6 +168,16 @@ def _score_curve(rows: list[dict], frames: np.ndarray, window: int) -> np.ndarra
     return out
 
 
+def _ci(x: np.ndarray) -> list[float] | None:
+    """Bootstrap 95 % interval of the mean over seeds, where 3 or more seeds have a value."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if len(x) < 3:
+        return None
+    _, lo, hi = mean_ci(x)
+    return [round(lo, 2), round(hi, 2)]
+
+
 def _per_seed(ax, runs: list[dict], key: str, ci: int, variant: str) -> None:
     """One thin line per seed of a logged column (rows where it is missing skipped)."""
     for k, r in enumerate(runs):
@@ -189,13 +204,14 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         gdir = root / game
         with open(gdir / "curves.csv", "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["variant", "seed", "frames", "episodes", "return_mean", "idm_accuracy", "entropy", "loss_bc"])
+            w.writerow(["variant", "seed", "frames", "episodes", "return_mean", IDM_ACCURACY_EXPERT, IDM_ACCURACY_AGENT,
+                        "entropy", "loss_bc"])
             for variant, rs in runs.items():
                 for r in rs:
                     for row in r["rows"]:
                         w.writerow([variant, r["seed"], int(row["frames"]), int(row.get("episodes", 0)),
-                                    row.get("return_mean", math.nan), row.get("idm_accuracy", ""),
-                                    row.get("entropy", ""), row.get("loss_bc", "")])
+                                    row.get("return_mean", math.nan), row.get(IDM_ACCURACY_EXPERT, ""),
+                                    row.get(IDM_ACCURACY_AGENT, ""), row.get("entropy", ""), row.get("loss_bc", "")])
         # the logged frames of the longest run; the window shrinks for short runs
         longest = max((r["rows"] for rs in runs.values() for r in rs), key=len)
         grid = np.array([row["frames"] for row in longest])
@@ -216,15 +232,15 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
                 warnings.simplefilter("ignore", RuntimeWarning)
                 auc = np.nanmean(curves, 1)  # mean of the smoothed curve = normalised area under it
                 final_mean, auc_mean = float(np.nanmean(final)), float(np.nanmean(auc))
-            acc = [r["summary"].get("idm_accuracy") for r in rs]
+            acc = [r["summary"].get(IDM_ACCURACY_EXPERT) for r in rs]
             table.append({
                 "variant": variant, "seeds": len(rs),
-                "final_mean": final_mean, "final_per_seed": [round(float(x), 2) for x in final],
-                "auc_mean": auc_mean, "auc_per_seed": [round(float(x), 2) for x in auc],
-                "idm_accuracy": None if acc[0] is None else float(np.mean(acc)),
+                "final_mean": final_mean, "final_ci95": _ci(final), "final_per_seed": [round(float(x), 2) for x in final],
+                "auc_mean": auc_mean, "auc_ci95": _ci(auc), "auc_per_seed": [round(float(x), 2) for x in auc],
+                IDM_ACCURACY_EXPERT: None if acc[0] is None else float(np.mean(acc)),
                 "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs])),
             })
-            _per_seed(axes[1], rs, "idm_accuracy", ci, variant)
+            _per_seed(axes[1], rs, IDM_ACCURACY_EXPERT, ci, variant)
             _per_seed(axes[2], rs, "entropy", ci, variant)
         axes[1].set_ylim(0, 1)
         for ax, ylabel, title, loc in (
@@ -247,8 +263,9 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             w.writerows(table)
         result[game] = table
         for t in table:
-            print(f"{game:10s} {t['variant']:12s} seeds {t['seeds']}  final {t['final_mean']:7.2f} "
-                  f"{t['final_per_seed']}  AUC {t['auc_mean']:7.2f} {t['auc_per_seed']}"
-                  + (f"  IDM acc {t['idm_accuracy']:.1%}" if t["idm_accuracy"] is not None else ""))
+            ci_txt = (lambda c: f" [{c[0]:.2f}, {c[1]:.2f}]" if c else "")
+            print(f"{game:10s} {t['variant']:12s} seeds {t['seeds']}  final {t['final_mean']:7.2f}{ci_txt(t['final_ci95'])} "
+                  f"{t['final_per_seed']}  AUC {t['auc_mean']:7.2f}{ci_txt(t['auc_ci95'])} {t['auc_per_seed']}"
+                  + (f"  IDM acc {t[IDM_ACCURACY_EXPERT]:.1%}" if t[IDM_ACCURACY_EXPERT] is not None else ""))
     (root / "summary.json").write_text(json.dumps(result, indent=2))
     return result

@@ -17,6 +17,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
+from torchrl_hybrid.utils.stats import mean_diff_ci
+
 OPTIMAL = 7.93
 
 __all__ = ["SweepConfig", "GROUPS", "configurations", "run_sweep", "analyse", "parameter_table"]
@@ -87,7 +90,7 @@ def _run_batch(args) -> tuple[str, list[dict]]:
             pending[0] = 0
 
     summaries = train_taxi_batched(configs, write_outputs=False, progress=progress)
-    keep = ("frames", "return_mean", "episodes", "eval_return", "idm_accuracy")
+    keep = ("frames", "return_mean", "episodes", "eval_return", IDM_ACCURACY_EXPERT)
     for s in summaries:  # keep runs.json small: the curve columns the analysis reads
         s["curve"] = [{k: row[k] for k in keep if k in row} for row in s["curve"]]
         s.pop("config", None)
@@ -140,7 +143,7 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
     wall = time.perf_counter() - t0
     out = Path(cfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"groups": list(cfg.groups), "seeds": cfg.seeds, "total_frames": cfg.total_frames,
+    meta = {"groups": list(cfg.groups), "seeds": cfg.seeds, "total_frames": cfg.total_frames, "out_dir": cfg.out_dir,
             "workers": cfg.workers, "wall_time_s": round(wall, 1), "base": cfg.base}
     (out / "runs.json").write_text(json.dumps({"meta": meta, "runs": results}))
     analyse(out, results, meta)
@@ -148,6 +151,19 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
 
 
 # ---------------------------------------------------------------- analysis
+def load_sweep(path: str | Path) -> tuple[dict[str, list[dict]], dict]:
+    """``(runs, meta)`` of a sweep's ``runs.json`` (a file or its folder); files written
+    before the accuracy columns were named apart are read with the new names."""
+    path = Path(path)
+    data = json.loads((path / "runs.json" if path.is_dir() else path).read_text())
+    for rs in data["runs"].values():
+        for r in rs:
+            upgrade_accuracy_keys(r)
+            for row in r.get("curve", []):
+                upgrade_accuracy_keys(row)
+    return data["runs"], data["meta"]
+
+
 def _curve(runs: list[dict], key: str) -> tuple[np.ndarray, np.ndarray]:
     frames = np.array([r["frames"] for r in runs[0]["curve"]])
     vals = np.array([[row.get(key, np.nan) for row in r["curve"]] for r in runs], dtype=float)
@@ -160,19 +176,19 @@ def frames_to_reach(frames: np.ndarray, curve: np.ndarray, level: float) -> floa
     return float(frames[hit[0]]) if len(hit) else math.nan
 
 
-def _stats(runs: list[dict]) -> dict[str, Any]:
+def _stats(runs: list[dict], optimal: float) -> dict[str, Any]:
     frames, ev = _curve(runs, "eval_return")
-    reach = np.array([frames_to_reach(frames, c, 0.95 * OPTIMAL) for c in ev])
+    reach = np.array([frames_to_reach(frames, c, 0.95 * optimal) for c in ev])
     final = np.array([r["final_return"] for r in runs])
     auc = ev.mean(1)  # mean greedy return over the logged points = normalised area under the curve
     out = {
         "final": final, "auc": auc, "reach": reach, "frames": frames, "eval": ev,
         "early": ev[:, np.searchsorted(frames, 10_000)] if frames[-1] >= 10_000 else ev[:, -1],
     }
-    acc = [r["idm_accuracy"] for r in runs]
+    acc = [r[IDM_ACCURACY_EXPERT] for r in runs]
     if acc[0] is not None:
         out["idm_final"] = np.array(acc)
-        out["idm"] = _curve(runs, "idm_accuracy")[1]
+        out["idm"] = _curve(runs, IDM_ACCURACY_EXPERT)[1]
     return out
 
 
@@ -188,12 +204,12 @@ def _reach_str(r: np.ndarray) -> str:
     return f"{np.median(r[ok]) / 1000:.1f}k ({ok.sum()}/{len(r)} seeds)"
 
 
-def _diff_ci(a: np.ndarray, b: np.ndarray, n_boot: int = 4000, seed: int = 0) -> tuple[float, float, float]:
-    """Mean of a - b (independent seeds) with a bootstrap 95 % interval."""
-    rng = np.random.default_rng(seed)
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    boots = [rng.choice(a, len(a)).mean() - rng.choice(b, len(b)).mean() for _ in range(n_boot)]
-    return float(a.mean() - b.mean()), float(np.percentile(boots, 2.5)), float(np.percentile(boots, 97.5))
+def _diff_ci(a, b) -> tuple[float, float, float]:
+    """mean(a) - mean(b) with its bootstrap 95 % interval; NaN bounds (so no claim can
+    hold) with fewer than 2 seeds."""
+    if min(len(a), len(b)) < 2:
+        return float(np.mean(a) - np.mean(b)), math.nan, math.nan
+    return mean_diff_ci(a, b)
 
 
 def _cmp(S, a, b, metric) -> tuple[bool, str]:
@@ -230,7 +246,7 @@ def _style_return_axis(ax):
     ax.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:g}k")
 
 
-def _plot(S, names, path, title, key="eval", ylabel="greedy return", optimal=True, ylim=None):
+def _plot(S, names, path, title, key="eval", ylabel="greedy return", optimal: float | None = None, ylim=None):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -245,8 +261,8 @@ def _plot(S, names, path, title, key="eval", ylabel="greedy return", optimal=Tru
         m, s = np.nanmean(y, 0), np.nanstd(y, 0)
         ax.plot(x, m, label=n)
         ax.fill_between(x, m - s, m + s, alpha=0.2)
-    if optimal:
-        ax.axhline(OPTIMAL, color="k", ls="--", lw=1, label=f"optimal {OPTIMAL}")
+    if optimal is not None:
+        ax.axhline(optimal, color="k", ls="--", lw=1, label=f"optimal {optimal:.2f}")
     if ylim is None:
         _style_return_axis(ax)
     else:
@@ -262,7 +278,7 @@ def _plot(S, names, path, title, key="eval", ylabel="greedy return", optimal=Tru
     plt.close(fig)
 
 
-def _plot_noise(S, path, seeds):
+def _plot_noise(S, path, seeds, optimal: float, env_name: str):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -279,7 +295,7 @@ def _plot_noise(S, path, seeds):
                 m, s = np.nanmean(S[n]["eval"], 0), np.nanstd(S[n]["eval"], 0)
                 ax.plot(S[n]["frames"], m, label=v)
                 ax.fill_between(S[n]["frames"], m - s, m + s, alpha=0.2)
-            ax.axhline(OPTIMAL, color="k", ls="--", lw=1)
+            ax.axhline(optimal, color="k", ls="--", lw=1)
             ax.set_title(f"{name} = {x}")
             _style_return_axis(ax)
             ax.grid(alpha=0.3)
@@ -288,7 +304,7 @@ def _plot_noise(S, path, seeds):
             if col == 0:
                 ax.set_ylabel("greedy return")
             ax.legend(fontsize=8, loc="lower right")
-    fig.suptitle(f"Taxi, noisy demonstrations (mean ± std over {seeds} seeds)")
+    fig.suptitle(f"{env_name}, noisy demonstrations (mean ± std over {seeds} seeds)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -297,13 +313,18 @@ def _plot_noise(S, path, seeds):
 def analyse(out: str | Path, results: dict[str, list[dict]], meta: dict) -> dict[str, Any]:
     """Writes curves.csv, final.csv, parameters.csv, the figures and README.md."""
     out = Path(out)
-    S = {n: _stats(r) for n, r in results.items()}
+    # the optimum is the built-in expert's own exact return on this env (7.93 on Taxi), never assumed
+    optimal = float(np.mean([r["optimal_return"] for rs in results.values() for r in rs]))
+    env = meta.get("base", {}).get("env", {})
+    env_name = env.get("env_id", "Taxi-v4").split("-v")[0] + "".join(f" {v}" for v in env.get("kwargs", {}).values()
+                                                                   if isinstance(v, str))
+    S = {n: _stats(r, optimal) for n, r in results.items()}
     seeds = meta["seeds"]
     # aggregated curves
     with (out / "curves.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["config", "frames", "eval_return_mean", "eval_return_std", "return_mean_mean",
-                    "return_mean_std", "idm_accuracy_mean", "idm_accuracy_std", "seeds"])
+                    "return_mean_std", "idm_accuracy_expert_mean", "idm_accuracy_expert_std", "seeds"])
         for n, runs in sorted(results.items()):
             frames, ev = _curve(runs, "eval_return")
             _, tr = _curve(runs, "return_mean")
@@ -315,12 +336,12 @@ def analyse(out: str | Path, results: dict[str, list[dict]], meta: dict) -> dict
                             "" if acc is None else f"{np.nanstd(acc[:, i]):.4f}", len(runs)])
     with (out / "final.csv").open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["config", "seed", "final_return", "auc", "frames_to_95pct", "idm_accuracy"])
+        w.writerow(["config", "seed", "final_return", "auc", "frames_to_95pct", IDM_ACCURACY_EXPERT])
         for n, runs in sorted(results.items()):
             for i, r in enumerate(runs):
                 w.writerow([n, r["seed"], f"{r['final_return']:.4f}", f"{S[n]['auc'][i]:.4f}",
                             "" if math.isnan(S[n]["reach"][i]) else int(S[n]["reach"][i]),
-                            "" if r["idm_accuracy"] is None else f"{r['idm_accuracy']:.4f}"])
+                            "" if r[IDM_ACCURACY_EXPERT] is None else f"{r[IDM_ACCURACY_EXPERT]:.4f}"])
     params = parameter_table()
     with (out / "parameters.csv").open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(params[0]))
@@ -330,27 +351,27 @@ def analyse(out: str | Path, results: dict[str, list[dict]], meta: dict) -> dict
     figs = []
     if "agents" in meta["groups"]:
         _plot(S, ["hybrid_dual", "hybrid_mlp", "bc_dual", "bc_mlp", "il", "a2c"], out / "fig_agents.png",
-              f"Taxi agents (mean ± std over {seeds} seeds)")
+              f"{env_name} agents (mean ± std over {seeds} seeds)", optimal=optimal)
         _plot(S, ["hybrid_dual", "hybrid_mlp"], out / "fig_action_prediction.png",
               "inverse-model accuracy on the expert's actions (inside the hybrid agent)",
-              key="idm", ylabel="inferred = true expert action", optimal=False, ylim=(0, 1))
+              key="idm", ylabel="inferred = true expert action", ylim=(0, 1))
         figs += ["fig_agents.png", "fig_action_prediction.png"]
     if "ranks" in meta["groups"]:
         S_r = dict(S)
         if "hybrid_dual" in S:
             S_r["hybrid_dual_rank2"] = S["hybrid_dual"]
         _plot(S_r, ["hybrid_dual_rank1", "hybrid_dual_rank2", "hybrid_dual_rank4", "a2c"], out / "fig_ranks.png",
-              f"Taxi, rank of the dual model (mean ± std over {seeds} seeds)")
+              f"{env_name}, rank of the dual model (mean ± std over {seeds} seeds)", optimal=optimal)
         figs.append("fig_ranks.png")
     if any(g.startswith("noise") for g in meta["groups"]):
-        _plot_noise(S, out / "fig_noise.png", seeds)
+        _plot_noise(S, out / "fig_noise.png", seeds, optimal, env_name)
         figs.append("fig_noise.png")
-    claims = _claims(S)
-    _write_readme(out, S, results, meta, params, claims, figs)
+    claims = _claims(S, optimal)
+    _write_readme(out, S, results, meta, params, claims, figs, optimal, env_name)
     return {"stats": S, "claims": claims}
 
 
-def _claims(S) -> list[dict]:
+def _claims(S, optimal: float) -> list[dict]:
     claims = []
 
     def have(*names):
@@ -399,8 +420,8 @@ def _claims(S) -> list[dict]:
         parts, held = [], True
         for n in sorted(noise):
             b = n.replace("hybrid_dual", "bc_dual")
-            hy_opt = np.mean(S[n]["final"] >= 0.95 * OPTIMAL)
-            bc_opt = np.mean(S[b]["final"] >= 0.95 * OPTIMAL) if b in S else math.nan
+            hy_opt = np.mean(S[n]["final"] >= 0.95 * optimal)
+            bc_opt = np.mean(S[b]["final"] >= 0.95 * optimal) if b in S else math.nan
             held &= hy_opt >= 0.75 and (np.isnan(bc_opt) or bc_opt < hy_opt)
             parts.append(f"{n.split('_')[-1]}: hybrid {_ms(S[n]['final'])} ({hy_opt:.0%} of seeds ≥ 95 % of optimal), "
                          f"bc {_ms(S[b]['final']) if b in S else 'n/a'} ({bc_opt:.0%})")
@@ -412,19 +433,36 @@ def _claims(S) -> list[dict]:
     return claims
 
 
-def _write_readme(out, S, results, meta, params, claims, figs):
+def _rerun_command(meta: dict) -> str:
+    """The command line that trains this sweep again."""
+    def flat(d, prefix="+base."):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                yield from flat(v, f"{prefix}{k}.")
+            else:
+                yield f"{prefix}{k}={str(v).lower() if isinstance(v, bool) else v}"
+    args = [f"groups=[{','.join(meta['groups'])}]", f"seeds={meta['seeds']}", f"total_frames={meta['total_frames']}"]
+    if meta.get("out_dir"):
+        args.append(f"out_dir={meta['out_dir']}")
+    return " ".join(["python recipes/taxi_sweep.py", *args, *flat(meta.get("base", {}))])
+
+
+def _write_readme(out, S, results, meta, params, claims, figs, optimal: float, env_name: str):
     seeds, frames = meta["seeds"], meta["total_frames"]
+    rerun = _rerun_command(meta)
     lines = [
-        "# Taxi: reproduction of the paper's results",
+        "# Taxi: reproduction of the paper's results" if env_name == "Taxi"
+        else f"# {env_name}: the paper's Taxi study on another env",
         "",
         f"{len(results)} configurations × {seeds} seeds × {frames:,} frames, trained with the batched fast path "
         f"(`torchrl_hybrid/trainers/batched.py`) in **{meta['wall_time_s']:.0f} s** wall time with "
         f"{meta['workers']} worker processes on a 2-core CPU.",
         "",
-        "Rerun: `python recipes/taxi_sweep.py` (all), or e.g. `python recipes/taxi_sweep.py groups=[agents] seeds=4`.",
+        f"Rerun: `{rerun}`.",
         "Curves are greedy-policy returns on 100 fresh episodes every 2,000 frames, mean ± std over seeds. "
         "`final` is the greedy return over 300 episodes at the end; `auc` the mean greedy return over the logged "
-        f"points; `reach` the frames until the greedy return first reached 95 % of the optimum ({0.95 * OPTIMAL:.2f}). "
+        f"points; `reach` the frames until the greedy return first reached 95 % of the optimum ({0.95 * optimal:.2f}; "
+        f"the optimum {optimal:.2f} is the built-in expert's own exact return). "
         "Differences carry a bootstrap 95 % interval over seeds; a claim is marked held only when every "
         "comparison it needs has an interval on the claimed side of 0.",
         "",

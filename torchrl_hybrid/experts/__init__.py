@@ -1,4 +1,4 @@
 """Experts that generate demonstrations (computed by our own code, never downloaded)."""
-from torchrl_hybrid.experts.tabular import expected_return, optimal_policy, value_iteration
+from torchrl_hybrid.experts.tabular import episode_ends, expected_return, optimal_policy, value_iteration
 
-__all__ = ["expected_return", "optimal_policy", "value_iteration"]
+__all__ = ["episode_ends", "expected_return", "optimal_policy", "value_iteration"]

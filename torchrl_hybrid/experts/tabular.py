@@ -5,7 +5,7 @@ import torch
 
 from torchrl_hybrid.envs.tabular import TabularModel
 
-__all__ = ["value_iteration", "optimal_policy", "expected_return"]
+__all__ = ["value_iteration", "optimal_policy", "expected_return", "episode_ends"]
 
 
 def value_iteration(
@@ -28,13 +28,33 @@ def value_iteration(
     raise RuntimeError(f"value iteration did not converge in {max_iters} iterations")
 
 
-def optimal_policy(model: TabularModel, gamma: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+def optimal_policy(model: TabularModel, gamma: float = 0.99) -> tuple[torch.Tensor, torch.Tensor]:
     """The deterministic optimal policy ``pi[S]`` (lowest index among ties) and the
-    boolean mask ``optimal[S, A]`` of every action that is optimal in each state."""
+    boolean mask ``optimal[S, A]`` of every action that is optimal in each state.
+
+    ``gamma < 1`` (the default, 0.99) makes the expert prefer the shortest way to a
+    reward: with ``gamma = 1`` and a reward only at the goal (FrozenLake), every
+    action that keeps the goal reachable ties, walking into a wall among them, and the
+    lowest-index tie (LEFT) loops forever. On Taxi (-1 a step) both give the same
+    shortest-path expert (mean return 7.93)."""
     _, Q = value_iteration(model, gamma)
     best = Q.max(-1, keepdim=True).values
     optimal = (Q >= best - 1e-6)
     return optimal.float().argmax(-1), optimal
+
+
+def episode_ends(model: TabularModel, policy: torch.Tensor, horizon: int) -> torch.Tensor:
+    """``[n_starts]`` bool: whether a deterministic ``policy[S]`` reaches a terminal
+    state within ``horizon`` steps from each possible start state (deterministic MDP)."""
+    if not model.deterministic:
+        raise ValueError("episode_ends needs a deterministic MDP")
+    s = torch.nonzero(model.initial_dist > 0).squeeze(-1)
+    ended = torch.zeros(len(s), dtype=torch.bool)
+    for _ in range(horizon):
+        a = policy[s]
+        ended |= model.terminated[s, a, 0]
+        s = model.next_state[s, a, 0]
+    return ended
 
 
 def expected_return(model: TabularModel, policy: torch.Tensor, horizon: int = 200) -> float:

@@ -7,9 +7,9 @@ from torch import nn
 from torchrl.modules import ProbabilisticActor, ValueOperator
 from torch.distributions import Categorical
 
-from torchrl_hybrid.modules.encoders import OneHotEncoder
+from torchrl_hybrid.modules.encoders import MLPEncoder, OneHotEncoder
 
-__all__ = ["make_policy", "make_tabular_actor_critic", "tabular_net"]
+__all__ = ["make_mlp_actor_critic", "make_policy", "make_tabular_actor_critic", "tabular_net"]
 
 
 def tabular_net(n_states: int, out_features: int, identity_embedding: bool = True) -> nn.Sequential:
@@ -50,4 +50,19 @@ def make_tabular_actor_critic(
     the paper's Taxi agent."""
     actor = make_policy(tabular_net(n_states, n_actions, identity_embedding))
     critic = ValueOperator(tabular_net(n_states, 1, identity_embedding), in_keys=["observation"])
+    return actor, critic
+
+
+def make_mlp_actor_critic(
+    obs_dim: int, n_actions: int, hidden: int = 64, num_layers: int = 2
+) -> tuple[ProbabilisticActor, ValueOperator]:
+    """Separate actor and critic MLPs on a vector observation (no shared parameters):
+    an :class:`MLPEncoder` then a linear head each. The actor's head starts small
+    (gain 0.01, as in Stable-Baselines3) so the first policy is near uniform."""
+    head = nn.Linear(hidden, n_actions)
+    nn.init.orthogonal_(head.weight, 0.01)
+    nn.init.zeros_(head.bias)
+    actor = make_policy(nn.Sequential(MLPEncoder(obs_dim, hidden, num_layers), head))
+    critic = ValueOperator(nn.Sequential(MLPEncoder(obs_dim, hidden, num_layers), nn.Linear(hidden, 1)),
+                           in_keys=["observation"])
     return actor, critic

@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["OneHotEncoder"]
+__all__ = ["MLPEncoder", "OneHotEncoder"]
 
 
 class OneHotEncoder(nn.Module):
@@ -36,3 +36,36 @@ class OneHotEncoder(nn.Module):
         if self.input == "one_hot":
             return state.float()
         return F.one_hot(state.long(), self.n).float()
+
+
+class MLPEncoder(nn.Module):
+    """Encodes a vector observation ``[*B, n]`` (CartPole, LunarLander) with an MLP:
+    ``num_layers`` layers of ``hidden`` units, each followed by ``tanh`` (the usual
+    choice for these control tasks, e.g. Stable-Baselines3's default policy).
+
+    Args:
+        in_features: size of the observation vector.
+        hidden: width of each layer; also ``out_features``.
+        num_layers: number of layers (>= 1).
+
+    Examples:
+        >>> MLPEncoder(4, hidden=8)(torch.zeros(3, 4)).shape
+        torch.Size([3, 8])
+    """
+
+    def __init__(self, in_features: int, hidden: int = 64, num_layers: int = 2):
+        super().__init__()
+        if num_layers < 1:
+            raise ValueError(f"num_layers must be >= 1, got {num_layers}")
+        layers: list[nn.Module] = []
+        width = in_features
+        for _ in range(num_layers):
+            layers += [nn.Linear(width, hidden), nn.Tanh()]
+            width = hidden
+        self.net = nn.Sequential(*layers)
+        self.in_features, self.out_features = in_features, hidden
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if obs.shape[-1] != self.in_features:
+            raise ValueError(f"MLPEncoder expects observations of size {self.in_features}, got shape {tuple(obs.shape)}")
+        return self.net(obs.float())

@@ -53,8 +53,7 @@ class InverseDynamicsModel(nn.Module):
     @torch.no_grad()
     def infer(self, obs: torch.Tensor, next_obs: torch.Tensor) -> torch.Tensor:
         """The inferred action M(s, s') (argmax, detached)."""
-        with torch.no_grad():
-            return self.action_logits(obs, next_obs).argmax(-1)
+        return self.action_logits(obs, next_obs).argmax(-1)
 
 
 class DualInverseDynamics(InverseDynamicsModel):
@@ -65,10 +64,16 @@ class DualInverseDynamics(InverseDynamicsModel):
     ``F(s, x) = sum_r (h_s M_r) * (h_x N_r)``:
     ``h_a_hat = F(s, ds)`` feeds ``P_i(a|s,s') = softmax(W_a h_a_hat + b_a)`` and
     ``h_ds_hat = F(s, a)`` feeds ``P_f(s'|s,a) = softmax(W_s' (h_ds_hat + W'_ds h_s) + b_s')``.
-    Sharing ``M_r, N_r`` between directions is the symmetry
-    ``T[:, k, :] = T[:, :, k]`` of the paper's score tensor
-    ``score(s, a, s') = T x1 h_s x2 h_a x3 h_ds`` with
-    ``T[i, k, j] = sum_r M_r[i, k] N_r[j, k]``.
+    The paper's score tensor is ``score(s, a, s') = T x1 h_s x2 h_a x3 h_ds`` with
+    ``T[i, k, j] = sum_r M_r[i, k] N_r[j, k]`` (:meth:`full_tensor`), so
+    ``score = <h_a, F(s, ds)>``. The paper *assumes* the symmetry
+    ``T[:, k, :] = T[:, :, k]`` and, on that ground, uses the same ``M_r, N_r`` for
+    the other direction, ``F(s, a)``. The low-rank form does not enforce that
+    symmetry: ``<h_ds, F(s, a)>`` contracts ``T`` with ``h_ds`` and ``h_a`` swapped
+    (``T x1 h_s x2 h_ds x3 h_a``) and differs from the score for general weights
+    (:meth:`forward_score`; tested). Sharing ``M_r, N_r`` ties the two directions'
+    parameters; the L1 embedding terms of the loss are what pull the predicted
+    embeddings towards the true ones.
 
     Args:
         encoder: maps observations to ``e_s``; must expose ``out_features``
@@ -154,9 +159,16 @@ class DualInverseDynamics(InverseDynamicsModel):
 
     def score(self, obs, action, next_obs) -> torch.Tensor:
         """The tensor score ``T x1 h_s x2 h_a x3 h_ds`` of (s, a, s'), i.e.
-        ``<h_a, F(s, ds)>``; equal to ``<h_ds, F(s, a)>`` by the symmetry."""
+        ``<h_a, F(s, ds)>`` (the inverse direction)."""
         h_s, h_ds = self.embed(obs, next_obs)
         return (self.action_embedding(action.long()) * self.dual(h_s, h_ds)).sum(-1)
+
+    def forward_score(self, obs, action, next_obs) -> torch.Tensor:
+        """``<h_ds, F(s, a)>`` (the forward direction) ``= T x1 h_s x2 h_ds x3 h_a``.
+        Equal to :meth:`score` only where ``T`` is symmetric in its last two
+        indices, which the shared ``M_r, N_r`` do not guarantee."""
+        h_s, h_ds = self.embed(obs, next_obs)
+        return (h_ds * self.dual(h_s, self.action_embedding(action.long()))).sum(-1)
 
     def full_tensor(self) -> torch.Tensor:
         """The ``d_s x d x d`` core tensor ``T[i, k, j] = sum_r M_r[i, k] N_r[j, k]``."""

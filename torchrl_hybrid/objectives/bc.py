@@ -10,6 +10,7 @@ from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
 from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
+from torchrl_hybrid.objectives.inverse_dynamics import unwrap_inverse_model
 
 __all__ = ["ExpertBCLoss", "PolicyEntropyLoss"]
 
@@ -27,12 +28,14 @@ class ExpertBCLoss(LossModule):
     Args:
         actor_network: a probabilistic policy (e.g. a TorchRL ``ProbabilisticActor``);
             its distribution is built from the expert states with ``get_dist``.
-        inverse_model: the action-inference model M, or ``None`` to clone the
+        inverse_model: the action-inference model M (or a ``TensorDictModule``
+            wrapping it, whose two in-keys name s and s'), or ``None`` to clone the
             actions stored under the ``action`` key.
 
     Keyword Args:
-        bc_coeff: weight of the term (authors' Taxi code: 2.0). A buffer, so a
-            hook can switch it on later (the paper's Atari start delay).
+        bc_coeff: weight of the term (authors' Taxi code: 2.0). A schedulable
+            buffer: ``loss.bc_coeff = 2.0`` switches it on in place (the paper's
+            Atari start delay).
         labels: ``"argmax"`` (the paper: clone ``argmax_a P_i(a | s, s')``) or
             ``"soft"``: the cross-entropy ``-sum_a P_i(a | s, s') log pi(a | s)``, so
             that actions the inverse model cannot tell apart (e.g. NOOP and FIRE while
@@ -81,6 +84,8 @@ class ExpertBCLoss(LossModule):
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
     out_keys = ["loss_bc", "bc_log_prob", "bc_batch_size", "bc_kept", "bc_policy_entropy"]
+    functional = False  # the policy and the inverse model stay the caller's modules
+    _schedulable_buffers = frozenset({"bc_coeff"})
 
     def __init__(
         self,
@@ -103,13 +108,15 @@ class ExpertBCLoss(LossModule):
             raise ValueError(f"entropy_floor={entropy_floor} must be >= 0")
         if inverse_model is None and (labels != "argmax" or confidence > 0):
             raise ValueError("soft labels and a confidence gate need an inverse model (they read P_i)")
+        in_keys = None
+        if inverse_model is not None:
+            inverse_model, in_keys = unwrap_inverse_model(inverse_model)
         self.actor_network = actor_network
         self.inverse_model = inverse_model
+        if in_keys is not None:
+            self.set_keys(observation=in_keys[0], next_observation=in_keys[1])
         self.labels_mode, self.confidence, self.entropy_floor = labels, float(confidence), float(entropy_floor)
         self.register_coeff_buffer("bc_coeff", bc_coeff)
-
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
 
     @property
     def in_keys(self):
@@ -182,27 +189,19 @@ class PolicyEntropyLoss(LossModule):
         actor_network: a probabilistic policy with ``get_dist``.
 
     Keyword Args:
-        entropy_coeff: weight of the bonus.
+        entropy_coeff: weight of the bonus (a schedulable buffer).
+
+    The loss reads the actor's own ``in_keys``; it has no keys of its own to rename.
     """
 
-    @dataclass
-    class _AcceptedKeys:
-        """Attributes:
-        observation: unused marker; the actor's own ``in_keys`` are read.
-        """
-
-        observation: NestedKey = "observation"
-
-    default_keys = _AcceptedKeys
     out_keys = ["loss_entropy", "entropy"]
+    functional = False
+    _schedulable_buffers = frozenset({"entropy_coeff"})
 
     def __init__(self, actor_network: ProbabilisticTensorDictSequential, *, entropy_coeff: float = 0.01):
         super().__init__()
         self.actor_network = actor_network
         self.register_coeff_buffer("entropy_coeff", entropy_coeff)
-
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
 
     @property
     def in_keys(self):

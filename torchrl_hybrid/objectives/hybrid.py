@@ -43,6 +43,7 @@ class HybridLoss(LossModule):
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
+    functional = False  # a container: its components own their parameters
 
     def __init__(
         self,
@@ -56,9 +57,6 @@ class HybridLoss(LossModule):
         self.rl_loss = rl_loss
         self.inverse_dynamics_loss = inverse_dynamics_loss
         self.bc_loss = bc_loss
-
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
 
     def make_value_estimator(self, value_type=None, **hyperparams):
         if self.rl_loss is not None:

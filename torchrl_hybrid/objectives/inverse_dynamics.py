@@ -6,12 +6,34 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
 from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
 
-__all__ = ["InverseDynamicsLoss", "DualInverseDynamicsLoss"]
+__all__ = ["InverseDynamicsLoss", "DualInverseDynamicsLoss", "unwrap_inverse_model"]
+
+
+def unwrap_inverse_model(inverse_model) -> tuple[InverseDynamicsModel, list | None]:
+    """The :class:`InverseDynamicsModel` behind ``inverse_model`` and, when it came
+    wrapped in a ``TensorDictModule(model, in_keys=[s_key, s_next_key], ...)``, the
+    wrapper's two in-keys (the loss then reads s and s' there)."""
+    if isinstance(inverse_model, InverseDynamicsModel):
+        return inverse_model, None
+    inner = getattr(inverse_model, "module", None)
+    if isinstance(inverse_model, TensorDictModuleBase) and isinstance(inner, InverseDynamicsModel):
+        in_keys = list(inverse_model.in_keys)
+        if len(in_keys) != 2:
+            raise ValueError(
+                f"a TensorDictModule-wrapped inverse model needs exactly two in_keys (s, s'), got {in_keys}; "
+                "e.g. TensorDictModule(idm, in_keys=['observation', ('next', 'observation')], out_keys=['idm_logits'])"
+            )
+        return inner, in_keys
+    raise TypeError(
+        f"inverse_model must be an InverseDynamicsModel (DualInverseDynamics, MLPInverseDynamics) or a "
+        f"TensorDictModule wrapping one, got {type(inverse_model).__name__}"
+    )
 
 
 class InverseDynamicsLoss(LossModule):
@@ -24,10 +46,16 @@ class InverseDynamicsLoss(LossModule):
     ``mask`` key (``True`` = use).
 
     Args:
-        inverse_model: the model to train.
+        inverse_model: the model to train, or a ``TensorDictModule`` wrapping it
+            (``in_keys=[s_key, s_next_key]``: the loss reads s and s' there).
 
     Keyword Args:
-        action_coeff: weight of ``-log P_i`` (the authors' Taxi code: 2.0).
+        action_coeff: weight of ``-log P_i`` (the authors' Taxi code: 2.0). A
+            schedulable buffer: ``loss.action_coeff = 0.5`` updates it in place.
+
+    The model stays a plain submodule (``functional`` is ``False``): its parameters
+    are the ones the caller holds, so a BC loss or labeller sharing the model sees
+    the weights this loss trains; build the optimiser over them directly.
 
     Returns (``forward``): ``loss_inverse`` and the detached diagnostics
     ``idm_accuracy`` (argmax P_i == a on this batch) and ``idm_entropy``.
@@ -62,21 +90,16 @@ class InverseDynamicsLoss(LossModule):
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
+    functional = False
+    _schedulable_buffers = frozenset({"action_coeff"})
 
-    def __init__(self, inverse_model: InverseDynamicsModel, *, action_coeff: float = 1.0):
+    def __init__(self, inverse_model, *, action_coeff: float = 1.0):
         super().__init__()
-        if not isinstance(inverse_model, InverseDynamicsModel):
-            raise TypeError(
-                f"inverse_model must be an InverseDynamicsModel, got {type(inverse_model).__name__}"
-            )
-        # Kept as a plain submodule: the parameters stay those of the model the
-        # caller holds, so a BC loss or a labeller using that model sees the
-        # weights this loss trains.
+        inverse_model, in_keys = unwrap_inverse_model(inverse_model)
         self.inverse_model = inverse_model
+        if in_keys is not None:
+            self.set_keys(observation=in_keys[0], next_observation=in_keys[1])
         self.register_coeff_buffer("action_coeff", action_coeff)
-
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
 
     @property
     def in_keys(self):
@@ -151,6 +174,8 @@ class DualInverseDynamicsLoss(InverseDynamicsLoss):
         embedding_coeff: weight of the two L1 embedding terms (authors: 0.1).
         forward_coeff: weight of ``-log P_f`` (authors: 0).
 
+    The three coefficients are schedulable buffers (``loss.embedding_coeff = 0.0``).
+
     Returns (``forward``): ``loss_inverse``, ``loss_action_embedding``,
     ``loss_state_embedding``, ``loss_forward`` (when ``forward_coeff > 0``) and the
     detached ``idm_accuracy``, ``idm_entropy``.
@@ -167,15 +192,18 @@ class DualInverseDynamicsLoss(InverseDynamicsLoss):
         >>> sum(v for k, v in out.items() if k.startswith("loss_")).backward()
     """
 
+    _schedulable_buffers = frozenset({"embedding_coeff", "forward_coeff"})
+
     def __init__(
         self,
-        inverse_model: InverseDynamicsModel,
+        inverse_model,
         *,
         action_coeff: float = 1.0,
         embedding_coeff: float = 0.1,
         forward_coeff: float = 0.0,
     ):
         super().__init__(inverse_model, action_coeff=action_coeff)
+        inverse_model = self.inverse_model
         if not inverse_model.has_embedding_terms:
             raise ValueError(
                 f"{type(inverse_model).__name__} has no embedding terms; use "

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import os
 import sys
 import time
@@ -47,6 +48,7 @@ from torchrl_hybrid.trainers.hybrid import (
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.files import prepare_out_dir
+from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["AtariConfig", "AtariRun", "atari_config", "build_atari", "train_atari", "evaluate_atari", "record_demos",
@@ -304,9 +306,10 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
         acc_pairs = acc_pairs.to(device)
 
     def evaluator():
-        if acc_pairs is None:
+        if inverse_model is None or demos is None:
             return {}
-        return {"idm_accuracy": inverse_model_accuracy(inverse_model, acc_pairs)}
+        # NaN where the demos carry no true actions (the column is always there)
+        return {IDM_ACCURACY_EXPERT: math.nan if acc_pairs is None else inverse_model_accuracy(inverse_model, acc_pairs)}
 
     metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator,
                           pbar_keys=("return_mean",), return_key=("next", "episode_score"))
@@ -320,6 +323,10 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
 # a checkpoint is resumed only by a run that agrees on these (total_frames may grow; threads and device may change)
 _RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "init", "env", "demo", "loss", "optim")
 _RESUME_IGNORE = ("env.num_threads",)
+
+
+def _finite(x) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
 
 
 def train_atari(cfg: AtariConfig) -> dict[str, Any]:
@@ -342,7 +349,8 @@ def train_atari(cfg: AtariConfig) -> dict[str, Any]:
     summary = {
         "game": cfg.env.game, "variant": cfg.variant, "seed": cfg.seed, "frames": int(trainer.collected_frames),
         "final_return": finished[-1] if finished else None,
-        "idm_accuracy": metrics.rows[-1].get("idm_accuracy") if metrics.rows else None,
+        IDM_ACCURACY_EXPERT: _finite(metrics.rows[-1].get(IDM_ACCURACY_EXPERT)) if metrics.rows else None,
+        IDM_ACCURACY_AGENT: _finite(metrics.rows[-1].get(IDM_ACCURACY_AGENT)) if metrics.rows else None,
         "eval_return": None if evaluation is None else evaluation["mean"],
         "evaluation": evaluation,
         "resumed_from_frames": run.resumed_from,

@@ -45,7 +45,7 @@ from torchrl_hybrid.data.expert import EXPERT_ACTION_KEY
 from torchrl_hybrid.envs.tabular import TabularModel
 from torchrl_hybrid.experts import expected_return
 from torchrl_hybrid.trainers.hybrid import get_variant
-from torchrl_hybrid.trainers.taxi import TaxiConfig, make_taxi_demos
+from torchrl_hybrid.trainers.taxi import TaxiConfig, make_taxi_demos, tabular_model
 
 __all__ = ["LazyRMSprop", "BatchedTabularAgents", "train_taxi_batched", "structure_key"]
 
@@ -358,7 +358,7 @@ def train_taxi_batched(
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     variant = get_variant(cfg.variant)
-    model = TabularModel.from_gym(cfg.env.env_id)
+    model = tabular_model(cfg.env.env_id, cfg.env.kwargs)
     S, A, K, E, T = model.n_states, model.n_actions, len(configs), cfg.env.num_envs, cfg.loss.n_steps
     demo_list, expert = [], None
     for c in configs:
@@ -425,7 +425,7 @@ def train_taxi_batched(
             row.update({name: float(v[k]) for name, v in last_losses.items()})
             row["eval_return"] = float(ev[k])
             if acc is not None:
-                row["idm_accuracy"] = float(acc[k])
+                row["idm_accuracy_expert"] = float(acc[k])
             row["time_s"] = round(time.perf_counter() - t0, 3)
             rows[k].append(row)
             finished[k] = []
@@ -496,7 +496,7 @@ def train_taxi_batched(
     train_time = time.perf_counter() - t0
     final = evaluate(cfg.logger.final_eval_episodes)
     acc = idm_accuracy() if has_acc else None
-    optimal = expected_return(model, expert)
+    optimal = expected_return(model, expert, cfg.env.max_episode_steps)
     summaries = []
     for k, c in enumerate(configs):
         summary = {
@@ -507,7 +507,7 @@ def train_taxi_batched(
             "final_return_std": float(final[k].std()),
             "final_eval_episodes": int(final.shape[1]),
             "optimal_return": optimal,
-            "idm_accuracy": None if acc is None else float(acc[k]),
+            "idm_accuracy_expert": None if acc is None else float(acc[k]),
             "train_time_s": round(train_time, 2),
             "frames_per_s": round(frames * K / train_time, 1),
             "batched_agents": K,

@@ -18,6 +18,17 @@ __all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "Inver
            "NextStateValueHook", "RunStateHook"]
 
 
+def _check_schedulable(loss: LossModule, name: str) -> None:
+    """A hook sets ``loss.<name> = value``; that updates the buffer in place only for
+    the loss's ``_schedulable_buffers`` (TorchRL's convention), so others are refused."""
+    if not isinstance(getattr(loss, name, None), torch.Tensor):
+        raise ValueError(f"{type(loss).__name__} has no coefficient buffer {name!r}")
+    if name not in getattr(type(loss), "_all_schedulable_buffers", ()):
+        raise ValueError(f"{type(loss).__name__}.{name} is not one of its _schedulable_buffers "
+                         f"({sorted(getattr(type(loss), '_all_schedulable_buffers', ()))}); declare it there "
+                         "so that assigning a float updates the buffer in place")
+
+
 class ExpertBatchHook(TrainerHookBase):
     """Pairs every optimisation batch with a batch of expert state pairs.
 
@@ -98,14 +109,13 @@ class DelayedCoefficientHook(TrainerHookBase):
     """
 
     def __init__(self, loss: LossModule, name: str, value: float, start_frames: int):
-        if not isinstance(getattr(loss, name, None), torch.Tensor):
-            raise ValueError(f"{type(loss).__name__} has no coefficient buffer {name!r}")
+        _check_schedulable(loss, name)
         self.loss, self.name, self.value, self.start_frames = loss, name, float(value), int(start_frames)
         self._trainer: Trainer | None = None
         self._set(0.0 if self.start_frames > 0 else self.value)
 
     def _set(self, value: float) -> None:
-        getattr(self.loss, self.name).fill_(value)
+        setattr(self.loss, self.name, value)  # a schedulable buffer: updated in place
 
     def __call__(self) -> None:
         on = self._trainer.collected_frames >= self.start_frames
@@ -147,8 +157,7 @@ class InverseModelReadyHook(TrainerHookBase):
 
     def __init__(self, loss: LossModule, name: str, value: float, accuracy: float, *, min_frames: int = 0,
                  smoothing: float = 0.05, accuracy_key: str = "idm_accuracy"):
-        if not isinstance(getattr(loss, name, None), torch.Tensor):
-            raise ValueError(f"{type(loss).__name__} has no coefficient buffer {name!r}")
+        _check_schedulable(loss, name)
         if not 0.0 < accuracy <= 1.0:
             raise ValueError(f"accuracy={accuracy} must be in (0, 1]")
         self.loss, self.name, self.value = loss, name, float(value)
@@ -157,7 +166,7 @@ class InverseModelReadyHook(TrainerHookBase):
         self.running: float | None = None
         self.on_at: int | None = None  # frames when it switched on
         self._trainer: Trainer | None = None
-        getattr(self.loss, self.name).fill_(0.0)
+        setattr(self.loss, self.name, 0.0)
 
     def __call__(self, optim_steps: int, average_losses: TensorDictBase | None) -> dict[str, Any] | None:
         if self.on_at is not None or average_losses is None or self.accuracy_key not in average_losses.keys():
@@ -167,7 +176,7 @@ class InverseModelReadyHook(TrainerHookBase):
         frames = self._trainer.collected_frames
         if self.running >= self.accuracy and frames >= self.min_frames:
             self.on_at = int(frames)
-            getattr(self.loss, self.name).fill_(self.value)
+            setattr(self.loss, self.name, self.value)
         return None
 
     def state_dict(self) -> dict[str, Any]:
@@ -178,7 +187,7 @@ class InverseModelReadyHook(TrainerHookBase):
         running, on_at = float(state_dict["running"]), int(state_dict["on_at"])
         self.running = None if running < 0 else running
         self.on_at = None if on_at < 0 else on_at
-        getattr(self.loss, self.name).fill_(self.value if self.on_at is not None else 0.0)
+        setattr(self.loss, self.name, self.value if self.on_at is not None else 0.0)
 
     def register(self, trainer: Trainer, name: str = "inverse_model_ready") -> None:
         self._trainer = trainer
@@ -246,7 +255,11 @@ class MetricsHook(TrainerHookBase):
         }
         row.update(self._losses)
         if self.evaluator is not None:
-            row.update(self.evaluator())
+            extra = self.evaluator()
+            clash = sorted(set(extra) & set(self._losses))
+            if clash:  # one meaning per column: an evaluation must not overwrite a loss diagnostic
+                raise ValueError(f"the evaluator's columns {clash} are also loss outputs; give them other names")
+            row.update(extra)
         row["time_s"] = round(time.perf_counter() - self._t0, 3)
         self._write(row)
         return row

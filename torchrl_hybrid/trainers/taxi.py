@@ -1,13 +1,23 @@
-"""The Taxi experiment: configuration, assembly and one training run.
+"""The gymnasium pipeline: Taxi (the paper's toy domain) and any other env with
+discrete actions and either discrete states (toy-text: FrozenLake, CliffWalking) or
+flat vector observations (CartPole): configuration, assembly and one training run.
 
-``recipes/taxi.py`` is a thin Hydra front-end over :func:`train_taxi`; tests and
-notebooks call :func:`train_taxi` directly with a :class:`TaxiConfig`.
+Discrete states get one-hot encoders, the authors' tabular actor and critic and a
+built-in expert (value iteration on the env's ``P``). Vector observations get MLP
+encoders, MLP actor and critic, and an expert given as a checkpoint (``model.pt`` of
+an earlier run of this pipeline, e.g. ``variant=a2c``), whose trajectories are recorded
+as the state-only demos.
+
+``recipes/taxi.py`` and ``recipes/train.py`` are thin Hydra front-ends over
+:func:`train_taxi`; tests and notebooks call :func:`train_taxi` directly with a
+:class:`TaxiConfig`.
 """
 from __future__ import annotations
 
 import dataclasses
 import json
 import logging
+import math
 import os
 import sys
 import time
@@ -17,6 +27,7 @@ from typing import Any
 
 import torch
 from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.record.loggers import get_logger
 
 from torchrl_hybrid.data import (
@@ -29,12 +40,14 @@ from torchrl_hybrid.data import (
     tabular_state_pairs,
     tabular_trajectories,
 )
-from torchrl_hybrid.envs import BACKENDS, TabularEnv, TabularModel, make_toy_text_env
-from torchrl_hybrid.experts import expected_return, optimal_policy
+from torchrl_hybrid.envs import BACKENDS, TabularEnv, TabularModel, make_toy_text_env, observation_kind
+from torchrl_hybrid.experts import episode_ends, expected_return, optimal_policy
 from torchrl_hybrid.modules import (
     DualInverseDynamics,
+    MLPEncoder,
     MLPInverseDynamics,
     OneHotEncoder,
+    make_mlp_actor_critic,
     make_tabular_actor_critic,
 )
 from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
@@ -50,10 +63,11 @@ from torchrl_hybrid.trainers.hybrid import (
 
 # a checkpoint is resumed only by a run that agrees on these (total_frames may grow)
 _RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "mlp_layers", "identity_embedding", "env", "demo", "loss",
-                "optim")
+                "optim", "encoder")
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.files import prepare_out_dir
+from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["TaxiConfig", "config_from_dict", "make_taxi_demos", "train_taxi"]
@@ -67,6 +81,7 @@ ENGINES = ("torchrl", "batched")
 @dataclass
 class EnvConfig:
     env_id: str = "Taxi-v4"
+    kwargs: dict = field(default_factory=dict)  # gym.make keyword arguments, e.g. map_name, is_slippery
     num_envs: int = 16
     backend: str = "auto"
     max_episode_steps: int = 50
@@ -81,6 +96,9 @@ class DemoConfig:
     eta: float = 0.0
     epsilon: float = 0.0
     epsilon_mode: str = "non_optimal"
+    expert_gamma: float = 0.99  # discount of the built-in value-iteration expert (below 1: shortest way to the reward)
+    expert: str | None = None   # vector observations: model.pt of an earlier run on this env, played to record demos
+    deterministic: bool = True  # record the expert's greedy action (false: sample its policy)
     rho: str = "visited"
     batch_size: int = 32
     curriculum_k0: int = 10
@@ -124,6 +142,14 @@ class LoggerConfig:
 
 
 @dataclass
+class EncoderConfig:
+    """Vector observations only: the MLP encoder of the actor, critic and inverse model."""
+
+    hidden: int = 64
+    num_layers: int = 2
+
+
+@dataclass
 class TaxiConfig:
     """Every knob of a Taxi run; ``recipes/config/taxi.yaml`` documents each one."""
 
@@ -146,6 +172,7 @@ class TaxiConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
 
     def validate(self) -> "TaxiConfig":
         """Raises ``ValueError`` naming the bad setting and what is allowed."""
@@ -192,7 +219,14 @@ def config_from_dict(d: dict[str, Any]) -> TaxiConfig:
 
 def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Generator):
     """The demo pairs of a run: the optimal expert's (or a file's), then noise."""
-    policy, optimal = optimal_policy(model)
+    policy, optimal = optimal_policy(model, cfg.demo.expert_gamma)
+    ends = episode_ends(model, policy, cfg.env.max_episode_steps)
+    if not bool(ends.all()):
+        raise ValueError(f"the built-in expert (value iteration, demo.expert_gamma={cfg.demo.expert_gamma}) does not end "
+                         f"an episode within env.max_episode_steps={cfg.env.max_episode_steps} from "
+                         f"{int((~ends).sum())} of {len(ends)} start states of {cfg.env.env_id}; raise "
+                         "env.max_episode_steps, or use demo.expert_gamma below 1 (0.99) so that it takes "
+                         "the shortest way to the goal")
     if cfg.demo.path:
         demos, _ = load_demos(cfg.demo.path, obs_shape=(), obs_dtype=torch.long)
         s = torch.cat([demos["observation"], demos["next", "observation"]])
@@ -221,12 +255,12 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
     return demos, policy
 
 
-def tabular_model(env_id: str) -> TabularModel:
+def tabular_model(env_id: str, env_kwargs: dict | None = None) -> TabularModel:
     """The env's transition table, which the built-in expert (value iteration) and the
     demos need whatever ``env.backend`` steps the agent; a clear error where there is none
     or where transitions are random."""
     try:
-        model = TabularModel.from_gym(env_id)
+        model = TabularModel.from_gym(env_id, **dict(env_kwargs or {}))
     except ValueError:
         raise ValueError(f"env.env_id={env_id}: this pipeline's built-in expert needs a toy-text env with a "
                          "transition table P (Taxi, CliffWalking, FrozenLake); env.backend does not change that") from None
@@ -234,6 +268,111 @@ def tabular_model(env_id: str) -> TabularModel:
         raise ValueError(f"env.env_id={env_id}: its transitions are random (e.g. is_slippery); the built-in "
                          "expert and the expected-return evaluation need a deterministic env")
     return model
+
+
+def _check_vector_config(cfg: TaxiConfig, needs_demos: bool = True) -> None:
+    """Options that need a toy-text env's discrete states or its table P are refused
+    for vector observations, with what to use instead."""
+    env = cfg.env.env_id
+    if cfg.env.backend == "tabular":
+        raise ValueError(f"env.backend=tabular needs a toy-text env with a table P; {env} has vector observations: "
+                         "use env.backend=vector (or auto)")
+    if cfg.demo.rho == "visited":
+        raise ValueError(f"demo.rho=visited matches expert pairs to visited discrete states; {env} has vector "
+                         "observations: use demo.rho=uniform or demo.rho=curriculum")
+    if cfg.demo.eta or cfg.demo.epsilon:
+        raise ValueError("demo.eta and demo.epsilon edit demos with the env's table P; for an env without one, "
+                         "record noisy demos yourself and pass demo.path")
+    if cfg.loss.idm_forward_coeff > 0:
+        raise ValueError("loss.idm_forward_coeff > 0 (the forward head P_f over next states) needs discrete states")
+    if cfg.engine == "batched":
+        raise ValueError("engine=batched runs toy-text envs only; use engine=torchrl for vector observations")
+    if needs_demos and not cfg.demo.expert and not cfg.demo.path:
+        raise ValueError(f"{env} has no table P, so there is no built-in expert: train one with this pipeline "
+                         f"(variant=a2c out_dir=<dir>) and pass demo.expert=<dir>/model.pt, or pass recorded demos "
+                         "with demo.path=<folder>")
+
+
+def load_gym_expert(cfg: TaxiConfig):
+    """The expert policy of a vector-observation env: the actor of ``cfg.demo.expert``
+    (``model.pt`` of an earlier run of this pipeline on the same env), rebuilt from the
+    settings stored beside its weights. Returns ``(actor, n_actions)``."""
+    path = Path(cfg.demo.expert) if cfg.demo.expert else None
+    kind, size = observation_kind(cfg.env.env_id, cfg.env.kwargs)
+    import gymnasium as gym
+
+    probe = gym.make(cfg.env.env_id, **cfg.env.kwargs)
+    n_actions = int(probe.action_space.n)
+    probe.close()
+    if path is None:  # demos given as a file: the expert is only needed for its evaluation
+        return None, n_actions
+    if not path.is_file():
+        raise FileNotFoundError(f"demo.expert={path}: no such checkpoint; train an expert first "
+                                f"(variant=a2c out_dir=<dir>) and pass <dir>/model.pt")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+        saved = ckpt["config"]
+        actor_state = ckpt["actor"]
+    except Exception as err:  # not a model.pt of this pipeline
+        raise ValueError(f"demo.expert={path} is not a model.pt written by this pipeline ({err})") from err
+    if saved["env"]["env_id"] != cfg.env.env_id or saved["env"].get("kwargs", {}) != cfg.env.kwargs:
+        raise ValueError(f"demo.expert={path} was trained on {saved['env']['env_id']} {saved['env'].get('kwargs', {})}, "
+                         f"this run plays {cfg.env.env_id} {cfg.env.kwargs}")
+    enc = saved.get("encoder", {"hidden": 64, "num_layers": 2})
+    actor, _ = make_mlp_actor_critic(size, n_actions, enc["hidden"], enc["num_layers"])
+    actor.load_state_dict(actor_state)
+    return actor.eval(), n_actions
+
+
+def make_gym_demos(cfg: TaxiConfig, expert_actor):
+    """State-only demos of a vector-observation env: ``demo.path`` if given, else
+    ``demo.num_trajectories`` whole episodes of ``expert_actor`` (greedy unless
+    ``demo.deterministic=false``), the true actions kept for diagnostics only."""
+    kind, size = observation_kind(cfg.env.env_id, cfg.env.kwargs)
+    if cfg.demo.path:
+        demos, meta = load_demos(cfg.demo.path, obs_shape=(size,), obs_dtype=torch.float32)
+        if meta.get("env_id", cfg.env.env_id) != cfg.env.env_id:
+            raise ValueError(f"demo.path={cfg.demo.path}: demos are for {meta.get('env_id')}, this run plays "
+                             f"{cfg.env.env_id}")
+        return demos
+    demos, returns = record_episodes(cfg.env.env_id, expert_actor, cfg.demo.num_trajectories,
+                                     cfg.env.max_episode_steps, seed=cfg.seed + 30_000, env_kwargs=cfg.env.kwargs,
+                                     deterministic=cfg.demo.deterministic)
+    if cfg.demo.save_path:
+        save_demos(demos, cfg.demo.save_path, {"env_id": cfg.env.env_id, "expert": cfg.demo.expert,
+                                               "returns": returns.tolist()}, overwrite=cfg.overwrite)
+    return demos
+
+
+@torch.no_grad()
+def record_episodes(env_id: str, policy, num_episodes: int, max_steps: int, *, seed: int = 0,
+                    env_kwargs: dict | None = None, deterministic: bool = True, num_envs: int = 16):
+    """Plays ``num_episodes`` whole episodes of ``policy`` and returns them as expert
+    pairs (:func:`~torchrl_hybrid.data.pairs_from_trajectories`: ``step`` and
+    ``trajectory`` indices, the true actions under ``expert_action``) and the
+    ``[num_episodes]`` episode returns."""
+    from torchrl_hybrid.data import pairs_from_trajectories
+
+    states, actions, returns = [], [], []
+    etype = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    round_ = 0
+    while len(states) < num_episodes:
+        n = min(num_envs, num_episodes - len(states))
+        env = make_toy_text_env(env_id, n, max_episode_steps=max_steps, seed=seed + 1000 * round_,
+                                env_kwargs=env_kwargs)
+        with set_exploration_type(etype):
+            td = env.rollout(max_steps, policy, break_when_any_done=False)
+        env.close()
+        done = td.get(("next", "done")).squeeze(-1)
+        if not done.any(-1).all():
+            raise RuntimeError(f"an expert episode did not end within {max_steps} steps; raise env.max_episode_steps")
+        for i in range(n):
+            end = int(done[i].nonzero()[0])  # the first episode of env i: steps 0..end
+            states.append(torch.cat([td["observation"][i, : end + 1], td["next", "observation"][i, end: end + 1]]))
+            actions.append(td["action"][i, : end + 1])
+            returns.append(float(td["next", "reward"][i, : end + 1].sum()))
+        round_ += 1
+    return pairs_from_trajectories(states, actions), torch.tensor(returns)
 
 
 def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
@@ -252,28 +391,44 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
 
-    model = tabular_model(cfg.env.env_id)
-    S, A = model.n_states, model.n_actions
-    demos, expert = make_taxi_demos(cfg, model, gen)
+    kind, size = observation_kind(cfg.env.env_id, cfg.env.kwargs)
+    model = expert_actor = None
+    if kind == "discrete":
+        model = tabular_model(cfg.env.env_id, cfg.env.kwargs)
+        S, A = model.n_states, model.n_actions
+        demos, expert = make_taxi_demos(cfg, model, gen)
+    else:  # vector observations: the expert is a checkpoint (or its recorded demos); plain A2C needs neither
+        needs_demos = variant.bc is not None or variant.inverse_model is not None
+        _check_vector_config(cfg, needs_demos)
+        expert_actor, A = load_gym_expert(cfg)
+        demos = make_gym_demos(cfg, expert_actor) if needs_demos else None
 
     env = make_toy_text_env(
         cfg.env.env_id, cfg.env.num_envs, backend=cfg.env.backend,
-        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed,
+        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed, env_kwargs=cfg.env.kwargs,
     )
     eval_env = make_toy_text_env(
         cfg.env.env_id, cfg.logger.eval_episodes, backend=cfg.env.backend,
-        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 10_000,
+        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 10_000, env_kwargs=cfg.env.kwargs,
     )
 
-    actor, critic = make_tabular_actor_critic(S, A, identity_embedding=cfg.identity_embedding)
+    if kind == "discrete":
+        actor, critic = make_tabular_actor_critic(S, A, identity_embedding=cfg.identity_embedding)
+    else:
+        actor, critic = make_mlp_actor_critic(size, A, cfg.encoder.hidden, cfg.encoder.num_layers)
+
+    def state_encoder():  # the inverse model's own e_s (the actor and critic keep theirs)
+        return OneHotEncoder(S) if kind == "discrete" else MLPEncoder(size, cfg.encoder.hidden, cfg.encoder.num_layers)
+
     inverse_model = None
     if variant.inverse_model == "dual":
         inverse_model = DualInverseDynamics(
-            OneHotEncoder(S), A, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
+            state_encoder(), A, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
             n_states=S if cfg.loss.idm_forward_coeff > 0 else None,
         )
     elif variant.inverse_model == "mlp":
-        inverse_model = MLPInverseDynamics(OneHotEncoder(S), A, d_state=cfg.d_state, hidden=cfg.d, num_layers=cfg.mlp_layers)
+        inverse_model = MLPInverseDynamics(state_encoder(), A, d_state=cfg.d_state, hidden=cfg.d,
+                                           num_layers=cfg.mlp_layers)
 
     lc = cfg.loss
     loss = make_hybrid_loss(
@@ -310,11 +465,13 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
                               bc_ready_accuracy=lc.bc_ready_accuracy,
                               include_expert_actions=variant.bc == "true", device=device)
 
+    labelled = demos is not None and EXPERT_ACTION_KEY in demos.keys()
+
     def evaluator(episodes_env=eval_env):
         returns = evaluate_policy(episodes_env, actor, cfg.env.max_episode_steps)
         row = {"eval_return": float(returns.mean())}
-        if inverse_model is not None and EXPERT_ACTION_KEY in demos.keys():
-            row["idm_accuracy"] = inverse_model_accuracy(inverse_model, demos)
+        if inverse_model is not None:  # NaN where the demos carry no true actions
+            row[IDM_ACCURACY_EXPERT] = inverse_model_accuracy(inverse_model, demos) if labelled else math.nan
         return row
 
     metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator, pbar_keys=("return_mean", "eval_return"))
@@ -330,7 +487,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
 
     final_env = make_toy_text_env(
         cfg.env.env_id, cfg.logger.final_eval_episodes, backend=cfg.env.backend,
-        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 20_000,
+        max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 20_000, env_kwargs=cfg.env.kwargs,
     )
     final_returns = evaluate_policy(final_env, actor, cfg.env.max_episode_steps)
     summary = {
@@ -340,9 +497,16 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
         "final_return": float(final_returns.mean()),
         "final_return_std": float(final_returns.std()),
         "final_eval_episodes": int(final_returns.numel()),
-        "optimal_return": expected_return(model, expert),
-        "idm_accuracy": inverse_model_accuracy(inverse_model, demos)
-        if inverse_model is not None and EXPERT_ACTION_KEY in demos.keys() else None,
+        # the expert's own exact return from the start distribution, within the episode cap
+        # vector observations: the expert checkpoint's own greedy return on the same final episodes (None without one)
+        "optimal_return": expected_return(model, expert, cfg.env.max_episode_steps) if model is not None
+        else None if expert_actor is None
+        else float(evaluate_policy(make_toy_text_env(cfg.env.env_id, cfg.logger.final_eval_episodes,
+                                                     backend=cfg.env.backend, max_episode_steps=cfg.env.max_episode_steps,
+                                                     seed=cfg.seed + 20_000, env_kwargs=cfg.env.kwargs),
+                                   expert_actor, cfg.env.max_episode_steps).mean()),
+        IDM_ACCURACY_EXPERT: inverse_model_accuracy(inverse_model, demos)
+        if inverse_model is not None and labelled else None,
         "train_time_s": round(train_time, 2),
         "frames_per_s": round((trainer.collected_frames - resumed) / train_time, 1),
         "resumed_from_frames": resumed,
