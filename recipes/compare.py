@@ -1,0 +1,44 @@
+"""Variants x seeds of one run config of the gymnasium pipeline (any preset), then a
+curve file, figure, table and README in ``out_dir``.
+
+    python recipes/compare.py --config-name cartpole out_dir=results/cartpole/compare \
+        demo.expert=results/cartpole/expert/model.pt +compare.seeds=[0,1,2,3,4]
+    python recipes/compare.py --config-name frozenlake8x8 out_dir=results/frozenlake_8x8/torchrl
+
+The run settings are those of recipes/train.py (recipes/config/taxi.yaml and its presets);
+``+compare.variants=[...]`` (default [a2c, hybrid_dual]), ``+compare.seeds=[...]``
+(default [0, 1, 2]) and ``+compare.workers=N`` (default 2) choose the runs. Finished runs
+are kept; an interrupted one resumes from its checkpoint.
+"""
+from __future__ import annotations
+
+import sys
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from torchrl_hybrid.experiments.gym_compare import GymCompareConfig, run_gym_compare
+
+
+@hydra.main(config_path="config", config_name="taxi", version_base=None)
+def main(cfg: DictConfig) -> None:
+    raw = OmegaConf.to_container(cfg, resolve=True)
+    raw.pop("hydra", None)
+    options = raw.pop("compare", None) or {}
+    out_dir = raw.pop("out_dir")
+    for k in ("variant", "seed", "resume", "overwrite"):  # set per run by the comparison
+        raw.pop(k, None)
+    try:
+        unknown = set(options) - {"variants", "seeds", "workers"}
+        if unknown:
+            raise ValueError(f"unknown compare option(s) {sorted(unknown)}; known: variants, seeds, workers")
+        command = " ".join(["python recipes/compare.py", *sys.argv[1:]])
+        run_gym_compare(GymCompareConfig(base=raw, out_dir=out_dir, command=command, **options))
+    except (ValueError, TypeError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    print(f"\nresults: {out_dir}/README.md, comparison.png, curves.csv, summary.csv")
+
+
+if __name__ == "__main__":
+    main()
