@@ -7,8 +7,10 @@ curve file, figure, table and README in ``out_dir``.
 
 The run settings are those of recipes/train.py (recipes/config/taxi.yaml and its presets);
 ``+compare.variants=[...]`` (default [a2c, hybrid_dual]), ``+compare.seeds=[...]``
-(default [0, 1, 2]) and ``+compare.workers=N`` (default 2) choose the runs. Finished runs
-are kept; an interrupted one resumes from its checkpoint.
+(default [0, 1, 2]) and ``+compare.workers=N`` (default 2) choose the runs;
+``+compare.launcher=ray`` runs them as Ray tasks (``+compare.address=<cluster>`` joins an
+existing cluster; without it a local one starts). Finished runs are kept; an interrupted
+one resumes from its checkpoint.
 """
 from __future__ import annotations
 
@@ -29,9 +31,10 @@ def main(cfg: DictConfig) -> None:
     for k in ("variant", "seed", "resume", "overwrite"):  # set per run by the comparison
         raw.pop(k, None)
     try:
-        unknown = set(options) - {"variants", "seeds", "workers"}
+        known = ("variants", "seeds", "workers", "launcher", "address", "max_retries")
+        unknown = set(options) - set(known)
         if unknown:
-            raise ValueError(f"unknown compare option(s) {sorted(unknown)}; known: variants, seeds, workers")
+            raise ValueError(f"unknown compare option(s) {sorted(unknown)}; known: {', '.join(known)}")
         command = " ".join(["python recipes/compare.py", *sys.argv[1:]])
         run_gym_compare(GymCompareConfig(base=raw, out_dir=out_dir, command=command, **options))
     except (ValueError, TypeError, FileNotFoundError) as err:

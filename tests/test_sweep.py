@@ -66,3 +66,23 @@ def test_sweep_command_line_subset(tmp_path):
         "hybrid_dual_rank1", "hybrid_dual", "hybrid_dual_rank4", "a2c"}
     bad = subprocess.run(cmd[:2] + ["seeds=0", f"out_dir={tmp_path}/x"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "seeds must be >= 1" in bad.stderr
+
+
+def test_an_interrupted_sweep_runs_only_the_missing_configurations(tmp_path, capsys):
+    base = {"logger": {"log_every_frames": 320, "eval_episodes": 4, "final_eval_episodes": 4}}
+    cfg = SweepConfig(groups=("ranks",), seeds=2, total_frames=320, out_dir=str(tmp_path), workers=1, base=base)
+    first = run_sweep(cfg, show_progress=False)
+    assert not (tmp_path / "configs").exists()  # a finished sweep keeps everything in runs.json
+    # the state an interrupted sweep leaves: a2c finished (its file written), the others not
+    from torchrl_hybrid.experiments import taxi_sweep as ts
+    settings = [ts._merge(ts._merge(ts._merge({"total_frames": 320, "logger": {"progress_bar": False}}, base),
+                                    {"variant": "a2c"}), {"seed": s, "out_dir": f"{tmp_path}/runs/a2c/seed_{s}"})
+                for s in range(2)]
+    marker = [dict(r, final_return=123.0) for r in first["a2c"]]
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "configs" / "a2c.json").write_text(json.dumps({"settings": settings, "summaries": marker}))
+    capsys.readouterr()
+    again = run_sweep(cfg, show_progress=False)
+    assert "1 configuration(s) already done" in capsys.readouterr().out
+    assert [r["final_return"] for r in again["a2c"]] == [123.0, 123.0]  # kept, not run again
+    assert set(again) == {"a2c", "hybrid_dual", "hybrid_dual_rank1", "hybrid_dual_rank4"}

@@ -13,7 +13,6 @@ import copy
 import csv
 import json
 import math
-import multiprocessing as mp
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -22,6 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci
 
@@ -46,6 +46,9 @@ class CompareConfig:
     base: dict = field(default_factory=dict)
     baselines: dict = field(default_factory=dict)
     label: str = ""  # shown after this comparison's variant names when baselines are drawn beside
+    launcher: str = "local"     # local (worker processes) | ray (Ray tasks; see torchrl_hybrid/utils/launch.py)
+    address: str | None = None  # ray: the cluster to join; None starts a local one
+    max_retries: int = 2        # ray: how often a run whose worker died is started again
 
     def validate(self) -> "CompareConfig":
         from torchrl_hybrid.trainers.atari import ATARI_VARIANTS
@@ -56,6 +59,8 @@ class CompareConfig:
             raise ValueError(f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)}")
         if self.workers < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers}")
+        if self.launcher not in LAUNCHERS:
+            raise ValueError(f"launcher={self.launcher!r}: choose one of {LAUNCHERS}")
         for label, folder in self.baselines.items():
             if not Path(folder).is_dir():
                 raise FileNotFoundError(f"baselines.{label}: {folder!r} is not a folder written by atari_compare")
@@ -76,11 +81,15 @@ def _run_dir(cfg: CompareConfig, game: str, variant: str, seed: int) -> Path:
 
 
 def _one(job: tuple[dict, str]) -> tuple[str, float]:
+    """One run. Whether it resumes is decided when it starts: a run interrupted mid-way
+    (or whose worker died and was restarted) goes on from its last checkpoint; one cut
+    before its first checkpoint starts again (replacing its partial curve)."""
     from torchrl_hybrid.trainers.atari import atari_config, train_atari
 
     d, name = job
+    ckpt = (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
-    train_atari(atari_config(d))
+    train_atari(atari_config(_merge(d, {"resume": ckpt, "overwrite": not ckpt})))
     return name, time.perf_counter() - t0
 
 
@@ -105,27 +114,17 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                 if (out / "summary.json").exists():
                     continue
                 d = _merge({"threads": threads, "env": {"num_threads": threads},
-                            "logger": {"progress_bar": cfg.workers == 1}}, cfg.base)
-                # a run interrupted mid-way goes on from its last checkpoint; one cut before
-                # its first checkpoint starts again (overwriting its partial curve)
-                ckpt = (out / "checkpoint").exists()
+                            "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"}}, cfg.base)
                 d = _merge(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
-                               "out_dir": str(out), "env": {"game": game}, "resume": ckpt, "overwrite": not ckpt,
+                               "out_dir": str(out), "env": {"game": game},
                                "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
                 jobs.append((d, f"{game}/{variant}_s{seed}"))
-    print(f"{len(jobs)} run(s) to do in {cfg.out_dir}", flush=True)
+    print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
     t0 = time.perf_counter()
-    if jobs:
-        if cfg.workers == 1:
-            done = map(_one, jobs)
-        else:
-            pool = mp.get_context("spawn").Pool(cfg.workers)
-            done = pool.imap_unordered(_one, jobs)
-        for name, secs in done:
-            print(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)", flush=True)
-        if cfg.workers > 1:
-            pool.close()
-            pool.join()
+    # a run takes `threads` CPUs (torch + ALE threads) of a Ray node
+    for name, secs in run_jobs(_one, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
+                               cpus_per_job=threads if cfg.launcher == "ray" else 1, max_retries=cfg.max_retries):
+        print(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)", flush=True)
     return analyse_compare(cfg)
 
 

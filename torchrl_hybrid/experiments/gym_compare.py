@@ -10,7 +10,6 @@ import copy
 import csv
 import json
 import math
-import multiprocessing as mp
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
@@ -36,6 +36,9 @@ class GymCompareConfig:
     seeds: Sequence[int] = (0, 1, 2)
     out_dir: str = "results/compare"
     workers: int = 2
+    launcher: str = "local"     # local (worker processes) | ray (Ray tasks; see torchrl_hybrid/utils/launch.py)
+    address: str | None = None  # ray: the cluster to join; None starts a local one
+    max_retries: int = 2        # ray: how often a run whose worker died is started again
     command: str = ""  # the command line that made this comparison, for the README
 
     def validate(self) -> "GymCompareConfig":
@@ -47,6 +50,8 @@ class GymCompareConfig:
             raise ValueError(f"compare.workers must be >= 1, got {self.workers}")
         if not self.seeds:
             raise ValueError("compare.seeds is empty")
+        if self.launcher not in LAUNCHERS:
+            raise ValueError(f"compare.launcher={self.launcher!r}: choose one of {LAUNCHERS}")
         return self
 
 
@@ -57,16 +62,21 @@ def _merge(a: dict, b: dict) -> dict:
     return out
 
 
-def _one(d: dict) -> tuple[str, float]:
+def run_one(d: dict) -> tuple[str, float]:
+    """One run of the comparison. Whether it resumes is decided here, when it starts: a
+    run restarted after its worker died goes on from its last checkpoint (or starts
+    again, replacing its partial files, when it died before the first one)."""
     from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
 
+    ckpt = (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
-    train_taxi(config_from_dict(d))
+    train_taxi(config_from_dict(_merge(d, {"resume": ckpt, "overwrite": not ckpt})))
     return d["out_dir"], time.perf_counter() - t0
 
 
-def run_gym_compare(cfg: GymCompareConfig) -> dict[str, Any]:
-    """Runs the missing runs, ``workers`` processes at a time, then analyses them."""
+def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
+    """Runs the missing runs (``workers`` at a time, on ``cfg.launcher``), then analyses
+    them. ``run_fn`` runs one job (:func:`run_one`; the fault tests wrap it)."""
     cfg.validate()
     jobs = []
     for variant in cfg.variants:
@@ -74,21 +84,13 @@ def run_gym_compare(cfg: GymCompareConfig) -> dict[str, Any]:
             out = Path(cfg.out_dir) / f"{variant}_s{seed}"
             if (out / "summary.json").exists():
                 continue
-            ckpt = (out / "checkpoint").exists()
-            jobs.append(_merge(cfg.base, {"variant": variant, "seed": seed, "out_dir": str(out), "resume": ckpt,
-                                          "overwrite": not ckpt,
-                                          "logger": {"progress_bar": cfg.workers == 1}}))
-    print(f"{len(jobs)} run(s) to do in {cfg.out_dir}", flush=True)
+            jobs.append(_merge(cfg.base, {"variant": variant, "seed": seed, "out_dir": str(out),
+                                          "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"}}))
+    print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
     t0 = time.perf_counter()
-    if jobs:
-        if cfg.workers == 1:
-            done = map(_one, jobs)
-            for out, secs in done:
-                print(f"  {out}: {secs:.0f} s", flush=True)
-        else:
-            with mp.get_context("spawn").Pool(cfg.workers) as pool:
-                for out, secs in pool.imap_unordered(_one, jobs):
-                    print(f"  {out}: {secs:.0f} s ({time.perf_counter() - t0:.0f} s since start)", flush=True)
+    for out, secs in run_jobs(run_fn, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
+                              max_retries=cfg.max_retries):
+        print(f"  {out}: {secs:.0f} s ({time.perf_counter() - t0:.0f} s since start)", flush=True)
     return analyse_gym_compare(cfg, wall_time_s=time.perf_counter() - t0 if jobs else None)
 
 
@@ -172,7 +174,7 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     if has_acc:
-        axes[0, 1].set(xlabel="frames", ylabel="inferred = true expert action", ylim=(0, 1),
+        axes[0, 1].set(xlabel="frames", ylabel="inferred = true expert action", ylim=(0, 1.03),
                        title="inverse-model accuracy on the demo pairs")
         axes[0, 1].grid(alpha=0.3)
         axes[0, 1].legend(loc="lower right", fontsize=8)

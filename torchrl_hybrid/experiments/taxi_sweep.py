@@ -10,6 +10,7 @@ import csv
 import json
 import math
 import multiprocessing as mp
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_diff_ci
 
@@ -51,6 +53,9 @@ class SweepConfig:
     out_dir: str = "results/taxi"
     workers: int = 2
     base: dict = field(default_factory=dict)
+    launcher: str = "local"     # local (worker processes) | ray (one Ray task per configuration)
+    address: str | None = None  # ray: the cluster to join; None starts a local one
+    max_retries: int = 2        # ray: how often a configuration whose worker died is started again
 
 
 def configurations(groups: Sequence[str]) -> dict[str, dict]:
@@ -109,6 +114,8 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
         raise ValueError(f"seeds must be >= 1, got {cfg.seeds}")
     if cfg.workers < 1:
         raise ValueError(f"workers must be >= 1, got {cfg.workers}")
+    if cfg.launcher not in LAUNCHERS:
+        raise ValueError(f"launcher={cfg.launcher!r}: choose one of {LAUNCHERS}")
     confs = configurations(cfg.groups)
     base = _merge({"total_frames": cfg.total_frames, "logger": {"progress_bar": False}}, cfg.base)
     jobs = []
@@ -118,34 +125,63 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
         jobs.append((name, dicts))
     # the slowest (dual-model) jobs first so that the two workers finish together
     jobs.sort(key=lambda j: ("dual" not in j[0], j[0]))
+    out = Path(cfg.out_dir)
+    # each finished configuration is kept in out/configs/<name>.json with the settings it ran
+    # with, so an interrupted sweep (or one whose worker died) goes on with the missing ones
+    done_dir = out / "configs"
+    done_dir.mkdir(parents=True, exist_ok=True)
+    results: dict[str, list[dict]] = {}
+    for name, dicts in list(jobs):
+        f = done_dir / f"{name}.json"
+        if f.exists():
+            saved = json.loads(f.read_text())
+            if saved["settings"] == dicts:
+                results[name] = saved["summaries"]
+                jobs.remove((name, dicts))
+    if results:
+        print(f"{len(results)} configuration(s) already done in {done_dir}; {len(jobs)} to run", flush=True)
+
+    def keep(name, summaries):
+        results[name] = summaries
+        f = done_dir / f"{name}.json"
+        tmp = f.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"settings": jobs_by_name[name], "summaries": summaries}))
+        tmp.replace(f)  # never a half-written file, also if the sweep is killed here
+
+    jobs_by_name = {n: d for n, d in jobs}
     total = sum(len(d) for _, d in jobs) * cfg.total_frames
     t0 = time.perf_counter()
-    results: dict[str, list[dict]] = {}
-    ctx = mp.get_context("spawn")
-    with ctx.Manager() as manager, tqdm(total=total, unit="frame", unit_scale=True, disable=not show_progress,
-                                         desc=f"{len(jobs)} configs x {cfg.seeds} seeds") as bar:
-        queue = manager.Queue()
-        with ctx.Pool(cfg.workers) as pool:
-            pending = pool.imap_unordered(_run_batch, [(n, d, queue) for n, d in jobs])
-            done = 0
-            while done < len(jobs):
-                try:
-                    name, summaries = pending.next(timeout=0.5)
-                    results[name] = summaries
-                    done += 1
-                    bar.set_postfix_str(f"last: {name}")
-                except mp.TimeoutError:
-                    pass
+    with tqdm(total=total, unit="frame", unit_scale=True, disable=not show_progress,
+              desc=f"{len(jobs)} configs x {cfg.seeds} seeds") as bar:
+        if cfg.launcher == "ray":  # one Ray task per configuration; progress per finished configuration
+            for name, summaries in run_jobs(_run_batch, [(n, d, None) for n, d in jobs], launcher="ray",
+                                            workers=cfg.workers, address=cfg.address, max_retries=cfg.max_retries):
+                keep(name, summaries)
+                bar.update(len(summaries) * cfg.total_frames)
+                bar.set_postfix_str(f"last: {name}")
+        elif jobs:
+            ctx = mp.get_context("spawn")
+            with ctx.Manager() as manager, ctx.Pool(cfg.workers) as pool:
+                queue = manager.Queue()
+                pending = pool.imap_unordered(_run_batch, [(n, d, queue) for n, d in jobs])
+                done = 0
+                while done < len(jobs):
+                    try:
+                        name, summaries = pending.next(timeout=0.5)
+                        keep(name, summaries)
+                        done += 1
+                        bar.set_postfix_str(f"last: {name}")
+                    except mp.TimeoutError:
+                        pass
+                    while not queue.empty():
+                        bar.update(queue.get())
                 while not queue.empty():
                     bar.update(queue.get())
-            while not queue.empty():
-                bar.update(queue.get())
     wall = time.perf_counter() - t0
-    out = Path(cfg.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     meta = {"groups": list(cfg.groups), "seeds": cfg.seeds, "total_frames": cfg.total_frames, "out_dir": cfg.out_dir,
             "workers": cfg.workers, "wall_time_s": round(wall, 1), "base": cfg.base}
     (out / "runs.json").write_text(json.dumps({"meta": meta, "runs": results}))
+    shutil.rmtree(done_dir)  # runs.json holds them all now
     analyse(out, results, meta)
     return results
 

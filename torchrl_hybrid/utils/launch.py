@@ -1,0 +1,84 @@
+"""Where a study's runs execute: local worker processes (the default) or Ray tasks.
+
+Every study (``taxi_sweep``, ``atari_compare``, ``recipes/compare.py``) hands its jobs to
+:func:`run_jobs`, which yields each job's result as it finishes. With
+``launcher="ray"`` each job is a Ray task: ``ray.init(address=...)`` joins an existing
+cluster, no address starts a local one on this machine. A job whose worker process
+dies (killed, out of memory, node lost) is started again by Ray up to
+``max_retries`` times; the studies make that safe: results are keyed by run, finished
+runs are kept and an interrupted run resumes from its checkpoint. When the retries run
+out, the study stops with an error that says how to continue.
+"""
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+from typing import Any, Callable, Iterator, Sequence
+
+__all__ = ["LAUNCHERS", "run_jobs"]
+
+LAUNCHERS = ("local", "ray")
+
+
+def _ray():
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("launcher=ray needs Ray: pip install -e '.[ray]' (or pip install ray)") from None
+    return ray
+
+
+def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "local", workers: int = 2,
+             address: str | None = None, cpus_per_job: float = 1.0, max_retries: int = 2) -> Iterator[Any]:
+    """Runs ``fn(job)`` for every job and yields the results in the order they finish.
+
+    Args:
+        fn: a picklable function (module level for ``local``; Ray also takes closures).
+        jobs: its arguments.
+        launcher: ``"local"`` (``workers`` spawned processes; 1 = in this process) or
+            ``"ray"`` (Ray tasks of ``cpus_per_job`` CPUs each; at most ``workers`` at a
+            time on a local cluster started here, which gets ``workers * cpus_per_job`` CPUs).
+        address: Ray only: the cluster to join (``"auto"``, ``"ray://host:10001"``, ...);
+            ``None`` starts a local cluster with ``workers`` CPUs.
+        max_retries: Ray only: how often a job whose worker died is started again.
+    """
+    if launcher not in LAUNCHERS:
+        raise ValueError(f"launcher={launcher!r}: choose one of {LAUNCHERS}")
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if not jobs:
+        return
+    if launcher == "local":
+        if workers == 1:
+            yield from map(fn, jobs)
+            return
+        with mp.get_context("spawn").Pool(workers) as pool:
+            yield from pool.imap_unordered(fn, jobs)
+        return
+    ray = _ray()
+    started_here = not ray.is_initialized()
+    if started_here:
+        if address is None:  # a local cluster on the loopback address, nothing else reached
+            ray.init(num_cpus=int(math.ceil(workers * cpus_per_job)), include_dashboard=False, log_to_driver=False,
+                     _node_ip_address="127.0.0.1")
+        else:
+            ray.init(address=address, log_to_driver=False)
+    remote = ray.remote(num_cpus=cpus_per_job, max_retries=max_retries)(fn)
+    pending = {remote.remote(job): i for i, job in enumerate(jobs)}
+    try:
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            i = pending.pop(done[0])
+            try:
+                yield ray.get(done[0])
+            except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
+                    ray.exceptions.OutOfMemoryError) as err:
+                raise RuntimeError(
+                    f"job {i} of {len(jobs)} lost its worker {max_retries + 1} times ({type(err).__name__}); the "
+                    "study stops here. Run the same command again to continue: finished runs are kept and "
+                    "interrupted ones resume from their checkpoints") from err
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        if started_here:
+            ray.shutdown()
