@@ -112,8 +112,8 @@ def test_resume_refuses_a_damaged_checkpoint_or_missing_settings(tmp_path):
 
 def test_a_killed_run_resumes_from_its_checkpoint(tmp_path):
     out = tmp_path / "run"
-    cmd = [sys.executable, str(ROOT / "recipes" / "taxi.py"), f"out_dir={out}", "device=cpu", "total_frames=40000",
-           "logger.progress_bar=false", "logger.log_every_frames=4000", "logger.eval_episodes=8",
+    cmd = [sys.executable, str(ROOT / "recipes" / "taxi.py"), f"out_dir={out}", "device=cpu", "total_frames=8000",
+           "logger.progress_bar=false", "logger.log_every_frames=1000", "logger.eval_episodes=8",
            "logger.final_eval_episodes=8"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 240
@@ -130,7 +130,7 @@ def test_a_killed_run_resumes_from_its_checkpoint(tmp_path):
     r = subprocess.run(cmd + ["resume=true"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["frames"] == 40000 and summary["resumed_from_frames"] > 0
+    assert summary["frames"] == 8000 and summary["resumed_from_frames"] > 0
 
 
 def test_a_run_killed_while_publishing_its_checkpoint_resumes_from_the_previous_one(tmp_path):

@@ -233,3 +233,45 @@ def test_vector_observation_errors_name_the_fix(tmp_path, kw, match):
     cfg = tiny(tmp_path, **{"env.env_id": "CartPole-v1", "env.max_episode_steps": 200, "demo.rho": "uniform", **kw})
     with pytest.raises((ValueError, FileNotFoundError), match=match):
         train_taxi(cfg)
+
+
+def _collected_with_current_weights(kind, tmp_path):
+    """Batches from make_collector match the learner's policy, also after its weights
+    change: the workers' copies are updated by TorchRL's weight update."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from torchrl_hybrid.envs import make_toy_text_env
+    from torchrl_hybrid.modules import make_tabular_actor_critic
+    from torchrl_hybrid.trainers.taxi import make_collector
+
+    cfg = tiny(tmp_path, **{"collector.kind": kind, "collector.workers": 2, "env.num_envs": 4})
+    actor, _ = make_tabular_actor_critic(500, 6)
+    collector = make_collector(cfg, make_toy_text_env(num_envs=4), actor, torch.device("cpu"))
+    try:
+        for i, batch in enumerate(collector):
+            assert batch.numel() == cfg.frames_per_batch
+            with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+                dist = actor.get_dist(batch.select("observation"))
+                assert torch.allclose(dist.log_prob(batch["action"]), batch["action_log_prob"], atol=1e-5), i
+                for p in actor.parameters():  # a learner update
+                    p.add_(torch.randn_like(p))
+            collector.update_policy_weights_()
+            if i == 2:
+                break
+    finally:
+        collector.shutdown()
+
+
+def test_multi_process_collection_uses_the_learners_weights(tmp_path):
+    _collected_with_current_weights("multi_sync", tmp_path)
+    s = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "ms"), **{"collector.kind": "multi_sync",
+                                                                    "collector.workers": 2}))
+    assert s["frames"] == 640
+
+
+def test_ray_collection_uses_the_learners_weights(tmp_path):
+    ray = pytest.importorskip("ray")
+    try:
+        _collected_with_current_weights("ray", tmp_path)
+    finally:
+        ray.shutdown()

@@ -15,6 +15,7 @@ as the state-only demos.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import logging
 import math
@@ -26,9 +27,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from torchrl.collectors import Collector
+from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.record.loggers import get_logger
+from torchrl.trainers import UpdateWeights
 
 from torchrl_hybrid.data import (
     EXPERT_ACTION_KEY,
@@ -142,6 +144,19 @@ class LoggerConfig:
 
 
 @dataclass
+class CollectorConfig:
+    """Where the agent's transitions are collected (torchrl_hybrid/trainers/taxi.py: make_collector)."""
+
+    kind: str = "single"         # single: TorchRL's Collector in this process | multi_sync: MultiSyncCollector,
+                                 # `workers` processes | ray: RayCollector, `workers` Ray actors
+    workers: int = 2             # multi_sync / ray: env.num_envs is split evenly between them
+    address: str | None = None   # ray: the cluster to join; None starts a local one with `workers` CPUs
+
+
+COLLECTORS = ("single", "multi_sync", "ray")
+
+
+@dataclass
 class EncoderConfig:
     """Vector observations only: the MLP encoder of the actor, critic and inverse model."""
 
@@ -173,6 +188,7 @@ class TaxiConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    collector: CollectorConfig = field(default_factory=CollectorConfig)
 
     def validate(self) -> "TaxiConfig":
         """Raises ``ValueError`` naming the bad setting and what is allowed."""
@@ -188,6 +204,11 @@ class TaxiConfig:
                 raise ValueError(msg)
 
         need(self.engine in ENGINES, f"engine must be one of {ENGINES}, got {self.engine!r}")
+        need(self.collector.kind in COLLECTORS, f"collector.kind must be one of {COLLECTORS}, got {self.collector.kind!r}")
+        if self.collector.kind != "single":
+            need(self.collector.workers >= 1 and self.env.num_envs % self.collector.workers == 0,
+                 f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
+            need(self.engine == "torchrl", "collector.kind=multi_sync|ray needs engine=torchrl")
         need(self.rank >= 1, f"rank must be an integer >= 1, got {self.rank}")
         need(self.mlp_layers >= 1, f"mlp_layers must be >= 1, got {self.mlp_layers}")
         for name in ("eta", "epsilon"):
@@ -375,6 +396,43 @@ def record_episodes(env_id: str, policy, num_episodes: int, max_steps: int, *, s
     return pairs_from_trajectories(states, actions), torch.tensor(returns)
 
 
+def _worker_env(cfg: TaxiConfig, i: int):
+    """The envs of collector worker ``i``: its share of ``env.num_envs``, its own seed."""
+    return make_toy_text_env(cfg.env.env_id, cfg.env.num_envs // cfg.collector.workers, backend=cfg.env.backend,
+                             max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 1000 * i,
+                             env_kwargs=cfg.env.kwargs)
+
+
+def make_collector(cfg: TaxiConfig, env, actor, device):
+    """TorchRL's collector for ``cfg.collector.kind``: ``Collector`` over ``env`` in this
+    process (the default), or ``MultiSyncCollector`` / ``RayCollector`` over
+    ``collector.workers`` workers, each stepping ``env.num_envs / workers`` envs with its
+    own copy of the policy (kept current by TorchRL's weight update, see ``UpdateWeights``).
+    Every kind gives batches of ``env.num_envs x loss.n_steps`` transitions; the workers'
+    kinds are synchronous (each batch is collected with the weights of the last update)."""
+    common = dict(frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames)
+    if cfg.collector.kind == "single":
+        return Collector(env, actor, env_device="cpu", policy_device=device, storing_device=device,
+                         auto_register_policy_transforms=False,  # a feed-forward policy needs none
+                         **common)
+    env.close()  # the workers build their own envs
+    fns = [functools.partial(_worker_env, cfg, i) for i in range(cfg.collector.workers)]
+    if cfg.collector.kind == "multi_sync":
+        return MultiSyncCollector(fns, actor, env_device="cpu", policy_device="cpu", storing_device=device,
+                                  cat_results=0, auto_register_policy_transforms=False, **common)
+    try:
+        import ray
+        from torchrl.collectors.distributed import RayCollector
+    except ImportError:
+        raise ValueError("collector.kind=ray needs Ray: pip install -e '.[ray]'") from None
+    init = ({"address": cfg.collector.address} if cfg.collector.address else
+            {"num_cpus": cfg.collector.workers, "include_dashboard": False, "_node_ip_address": "127.0.0.1"})
+    if not ray.is_initialized():
+        ray.init(log_to_driver=False, **init)
+    return RayCollector(fns, actor, sync=True, remote_configs={"num_cpus": 1}, storing_device=device,
+                        collector_kwargs={"auto_register_policy_transforms": False}, **common)
+
+
 def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     """Trains one agent on Taxi and writes ``metrics.csv``, ``summary.json``,
     ``learning_curve.png``, ``model.pt`` and a TorchRL trainer checkpoint (``checkpoint/``) into ``cfg.out_dir``. Returns the summary."""
@@ -440,11 +498,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     ).to(device)
     optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
 
-    collector = Collector(
-        env, actor, frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames,
-        env_device="cpu", policy_device=device, storing_device=device,
-        auto_register_policy_transforms=False,  # a feed-forward policy needs none
-    )
+    collector = make_collector(cfg, env, actor, device)
     logger = None
     if cfg.logger.backend != "none":
         logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"), experiment_name=f"{cfg.variant}_s{cfg.seed}")
@@ -476,8 +530,10 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
 
     metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, evaluator, pbar_keys=("return_mean", "eval_return"))
     metrics.register(trainer)
-    if isinstance(env.base_env, TabularEnv):  # bit-exact resume: random states, envs' states
-        RunStateHook(collector, [env, eval_env]).register(trainer)
+    if cfg.collector.kind == "single" and isinstance(env.base_env, TabularEnv):
+        RunStateHook(collector, [env, eval_env]).register(trainer)  # bit-exact resume: random states, envs' states
+    if cfg.collector.kind != "single":  # the workers' policy copies get the learner's weights after every batch
+        UpdateWeights(collector, update_weights_interval=1).register(trainer)
     resumed = resume_trainer(trainer, out, dataclasses.asdict(cfg), _RESUME_KEYS) if cfg.resume else 0
     (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=2))
 
@@ -525,5 +581,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     )
     for e in (eval_env, final_env):
         e.close()
+    if cfg.collector.kind != "single":
+        collector.shutdown()
     lock.close()
     return summary
