@@ -55,9 +55,8 @@ def main() -> None:
     torch.set_num_threads(1)
     kinds = ["multi_sync"] + ([] if args.no_ray else ["ray"])
     if not args.no_ray:
-        import ray
-        ray.init(num_cpus=max(args.workers), include_dashboard=False, log_to_driver=False,
-                 _node_ip_address="127.0.0.1")
+        from torchrl_hybrid.utils.launch import init_ray
+        init_ray(num_cpus=max(args.workers))
     for env_id in args.envs:
         single = measure(env_id, "single", 1, args.batches, args.num_envs)
         print(f"{env_id:12s} single (this process)   {single:9.0f} frames/s   1.00x", flush=True)

@@ -1,3 +1,4 @@
+import csv
 import pytest
 import torch
 
@@ -421,3 +422,22 @@ def test_demos_of_random_frames_are_refused(pong_demos, tmp_path):
     save_demos(fake, tmp_path / "fake", meta)
     with pytest.raises(ValueError, match="do not share their stacked frames"):
         train_atari(tiny(tmp_path / "run", variant="hybrid_dual", demo={"path": str(tmp_path / "fake")}))
+
+
+@pytest.mark.parametrize("kind", ["multi_sync", "ray"])
+def test_hybrid_runs_with_its_games_in_worker_processes(pong_demos, tmp_path, kind):
+    """collector.backend=multi_sync|ray: the games step in 2 workers (one env each), the
+    learner's weights reach them after every batch; the hybrid trains as with one process."""
+    if kind == "ray":
+        ray = pytest.importorskip("ray")
+    try:
+        s = train_atari(tiny(tmp_path, variant="hybrid_dual", collector={"backend": kind, "workers": 2},
+                             demo={"path": str(pong_demos / "demos")}))
+    finally:
+        if kind == "ray":
+            ray.shutdown()
+    assert s["frames"] == 256 and s["config"]["collector"]["backend"] == kind
+    rows = list(csv.DictReader((tmp_path / "metrics.csv").open()))
+    assert int(rows[-1]["frames"]) == 256 and "loss_bc" in rows[-1] and "loss_objective" in rows[-1]
+    with pytest.raises(ValueError, match="must divide env.num_envs"):
+        tiny(tmp_path / "bad", variant="a2c", collector={"backend": kind, "workers": 3}).validate()

@@ -17,7 +17,8 @@ FROZEN = {"env": {"env_id": "FrozenLake-v1", "kwargs": {"map_name": "8x8", "is_s
 
 @pytest.fixture(scope="module")
 def cluster():
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, _node_ip_address="127.0.0.1")
+    from torchrl_hybrid.utils.launch import init_ray
+    init_ray(num_cpus=2)
     yield
     ray.shutdown()
 

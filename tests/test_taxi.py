@@ -267,11 +267,3 @@ def test_multi_process_collection_uses_the_learners_weights(tmp_path):
     s = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "ms"), **{"collector.kind": "multi_sync",
                                                                     "collector.workers": 2}))
     assert s["frames"] == 640
-
-
-def test_ray_collection_uses_the_learners_weights(tmp_path):
-    ray = pytest.importorskip("ray")
-    try:
-        _collected_with_current_weights("ray", tmp_path)
-    finally:
-        ray.shutdown()

@@ -8,6 +8,7 @@ as Taxi; only the networks (a shared CNN), the env and the demo source differ.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import logging
 import math
@@ -24,8 +25,9 @@ from torchrl.collectors import Collector
 from torchrl.envs import RewardSum, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.record.loggers import get_logger
+from torchrl.trainers import UpdateWeights
 
-from torchrl_hybrid.collectors import AtariCollector
+from torchrl_hybrid.collectors import WORKER_KINDS, AtariCollector, make_worker_collector
 from torchrl_hybrid.data import (
     EXPERT_ACTION_KEY,
     CurriculumSampler,
@@ -34,7 +36,7 @@ from torchrl_hybrid.data import (
     save_demos,
 )
 from torchrl_hybrid.envs.atari import AtariEnv
-from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics, make_atari_actor_critic
+from torchrl_hybrid.modules import AtariEncoder, DualInverseDynamics, MLPInverseDynamics, make_atari_actor_critic
 from torchrl_hybrid.trainers.evaluation import inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import MetricsHook, NextStateValueHook
 from torchrl_hybrid.trainers.hybrid import (
@@ -69,6 +71,9 @@ class AtariEnvConfig:
 @dataclass
 class AtariCollectorConfig:
     backend: str = "atari"  # atari (AtariCollector) | torchrl (TorchRL's generic Collector, the reference path)
+    # | multi_sync (TorchRL's MultiSyncCollector, `workers` processes) | ray (RayCollector, `workers` Ray actors)
+    workers: int = 2        # multi_sync / ray: env.num_envs is split evenly between them
+    address: str | None = None  # ray: the cluster to join; None starts a local one
     env_groups: int = 1     # atari backend: groups of games stepped as a pipeline (1 = one vector env)
     keep_features: bool = True  # atari backend: the learner reuses the encoder pass made during collection
 
@@ -152,8 +157,12 @@ class AtariConfig:
                 f"variant {self.variant!r} needs expert demos: record them with recipes/atari_demos.py "
                 "and pass demo.path=<folder>"
             )
-        if self.collector.backend not in ("atari", "torchrl"):
-            raise ValueError(f"collector.backend={self.collector.backend!r}: choose atari or torchrl")
+        if self.collector.backend not in ("atari", "torchrl", *WORKER_KINDS):
+            raise ValueError(f"collector.backend={self.collector.backend!r}: choose atari, torchrl, "
+                             + " or ".join(WORKER_KINDS))
+        if self.collector.backend in WORKER_KINDS and (self.collector.workers < 1
+                                                        or self.env.num_envs % self.collector.workers):
+            raise ValueError(f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
         if self.collector.env_groups < 1 or self.env.num_envs % self.collector.env_groups:
             raise ValueError(f"collector.env_groups={self.collector.env_groups} must divide "
                              f"env.num_envs={self.env.num_envs}")
@@ -176,6 +185,16 @@ def _make_env(cfg: AtariConfig, num_envs: int | None = None, seed: int | None = 
                    num_threads=cfg.env.num_threads, noop_max=cfg.env.noop_max,
                    max_episode_frames=cfg.env.max_episode_frames)
     # episode score (raw, unclipped game reward) for the learning curve
+    return TransformedEnv(env, RewardSum(in_keys=["score"], out_keys=["episode_score"]))
+
+
+def _worker_env(cfg: AtariConfig, i: int) -> TransformedEnv:
+    """The games of collector worker ``i``: its share of ``env.num_envs``, its own seed and
+    its share of the ALE threads."""
+    workers = cfg.collector.workers
+    env = AtariEnv(cfg.env.game, cfg.env.num_envs // workers, seed=cfg.seed + 1000 * i,
+                   num_threads=max(1, cfg.env.num_threads // workers), noop_max=cfg.env.noop_max,
+                   max_episode_frames=cfg.env.max_episode_frames)
     return TransformedEnv(env, RewardSum(in_keys=["score"], out_keys=["episode_score"]))
 
 
@@ -242,6 +261,9 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
                                         seed=cfg.seed, num_threads=cfg.env.num_threads, noop_max=cfg.env.noop_max,
                                         max_episode_frames=cfg.env.max_episode_frames)
         env = base = envs[0]
+    elif cfg.collector.backend in WORKER_KINDS:
+        env = _make_env(cfg, num_envs=1)  # specs only: the workers step the games
+        base = env.base_env
     else:
         env = _make_env(cfg)
         base = env.base_env
@@ -252,7 +274,10 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
         _check_demo_metadata(meta, cfg, base, cfg.demo.path)
         _check_frame_stacks(demos, cfg.demo.path)
 
-    actor, critic, encoder, collection_policy = make_atari_actor_critic(base.n_actions, init=cfg.init)
+    # RayCollector sends the weights through torch.distributed, which takes contiguous tensors
+    # only: no channels-last convolution weights there (same numbers, another memory layout)
+    encoder = AtariEncoder(channels_last=False) if cfg.collector.backend == "ray" else None
+    actor, critic, encoder, collection_policy = make_atari_actor_critic(base.n_actions, encoder=encoder, init=cfg.init)
     inverse_model = None
     if variant.inverse_model == "dual":
         inverse_model = DualInverseDynamics(encoder, base.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank)
@@ -275,6 +300,11 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
         collector = AtariCollector(envs, collection_policy, frames_per_batch=cfg.frames_per_batch,
                                    total_frames=agent_steps, device=device,
                                    keep_features=cfg.collector.keep_features)
+    elif cfg.collector.backend in WORKER_KINDS:
+        fns = [functools.partial(_worker_env, cfg, i) for i in range(cfg.collector.workers)]
+        collector = make_worker_collector(cfg.collector.backend, fns, collection_policy,
+                                          frames_per_batch=cfg.frames_per_batch, total_frames=agent_steps,
+                                          device=device, address=cfg.collector.address)
     else:
         collector = Collector(env, collection_policy, frames_per_batch=cfg.frames_per_batch, total_frames=agent_steps,
                               env_device="cpu", policy_device=device, storing_device=device,
@@ -292,6 +322,8 @@ def build_atari(cfg: AtariConfig) -> AtariRun:
     )
     if variant.rl:
         NextStateValueHook(critic).register(trainer)
+    if cfg.collector.backend in WORKER_KINDS:  # the workers' policy copies get the learner's weights every batch
+        UpdateWeights(collector, update_weights_interval=1).register(trainer)
     if demos is not None:
         sampler = (CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
                    if cfg.demo.curriculum else None)

@@ -346,9 +346,11 @@ class NextStateValueHook(TrainerHookBase):
 
     @torch.no_grad()
     def __call__(self, batch: TensorDictBase) -> TensorDictBase:
-        v = batch.get(self.value_key)
+        if batch.ndim > 2:  # [workers, envs, time] from a stacking multi-worker collector (RayCollector)
+            batch = batch.reshape(-1, batch.shape[-1])
         if batch.ndim != 2:
-            raise ValueError("NextStateValueHook expects a [envs, time] batch from a single collector")
+            raise ValueError(f"NextStateValueHook expects a [envs, time] batch, got batch size {tuple(batch.shape)}")
+        v = batch.get(self.value_key)
         nv = torch.empty_like(v)
         nv[:, :-1] = v[:, 1:]
         need = batch.get(("next", "done")).reshape(batch.shape).clone()

@@ -27,11 +27,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from torchrl.collectors import Collector, MultiSyncCollector
+from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.record.loggers import get_logger
 from torchrl.trainers import UpdateWeights
 
+from torchrl_hybrid.collectors.workers import make_worker_collector
 from torchrl_hybrid.data import (
     EXPERT_ACTION_KEY,
     CurriculumSampler,
@@ -417,20 +418,7 @@ def make_collector(cfg: TaxiConfig, env, actor, device):
                          **common)
     env.close()  # the workers build their own envs
     fns = [functools.partial(_worker_env, cfg, i) for i in range(cfg.collector.workers)]
-    if cfg.collector.kind == "multi_sync":
-        return MultiSyncCollector(fns, actor, env_device="cpu", policy_device="cpu", storing_device=device,
-                                  cat_results=0, auto_register_policy_transforms=False, **common)
-    try:
-        import ray
-        from torchrl.collectors.distributed import RayCollector
-    except ImportError:
-        raise ValueError("collector.kind=ray needs Ray: pip install -e '.[ray]'") from None
-    init = ({"address": cfg.collector.address} if cfg.collector.address else
-            {"num_cpus": cfg.collector.workers, "include_dashboard": False, "_node_ip_address": "127.0.0.1"})
-    if not ray.is_initialized():
-        ray.init(log_to_driver=False, **init)
-    return RayCollector(fns, actor, sync=True, remote_configs={"num_cpus": 1}, storing_device=device,
-                        collector_kwargs={"auto_register_policy_transforms": False}, **common)
+    return make_worker_collector(cfg.collector.kind, fns, actor, device=device, address=cfg.collector.address, **common)
 
 
 def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:

@@ -15,7 +15,7 @@ import math
 import multiprocessing as mp
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["LAUNCHERS", "run_jobs"]
+__all__ = ["LAUNCHERS", "init_ray", "run_jobs"]
 
 LAUNCHERS = ("local", "ray")
 
@@ -26,6 +26,26 @@ def _ray():
     except ImportError:
         raise ValueError("launcher=ray needs Ray: pip install -e '.[ray]' (or pip install ray)") from None
     return ray
+
+
+def init_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
+    """Joins the Ray cluster at ``address``, or starts a local one with ``num_cpus`` CPUs on
+    the loopback address, unless Ray is already initialised. Returns whether it started
+    (or joined) here, i.e. whether the caller should shut it down.
+
+    Ray runs its workers at niceness 15 by default, so that on a machine shared with other
+    work they get the CPU last (measured: a Taxi sweep configuration took 55 s in a Ray task
+    against 12 s in the driver while an Atari run trained beside it); the local cluster
+    started here runs them at 0, as the local launcher's processes."""
+    ray = _ray()
+    if ray.is_initialized():
+        return False
+    if address is None:
+        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, _node_ip_address="127.0.0.1",
+                 _system_config={"worker_niceness": 0})
+    else:
+        ray.init(address=address, log_to_driver=False)
+    return True
 
 
 def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "local", workers: int = 2,
@@ -56,13 +76,7 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
             yield from pool.imap_unordered(fn, jobs)
         return
     ray = _ray()
-    started_here = not ray.is_initialized()
-    if started_here:
-        if address is None:  # a local cluster on the loopback address, nothing else reached
-            ray.init(num_cpus=int(math.ceil(workers * cpus_per_job)), include_dashboard=False, log_to_driver=False,
-                     _node_ip_address="127.0.0.1")
-        else:
-            ray.init(address=address, log_to_driver=False)
+    started_here = init_ray(address, num_cpus=int(math.ceil(workers * cpus_per_job)))
     remote = ray.remote(num_cpus=cpus_per_job, max_retries=max_retries)(fn)
     pending = {remote.remote(job): i for i, job in enumerate(jobs)}
     try:
