@@ -74,8 +74,8 @@ def test_an_interrupted_sweep_runs_only_the_missing_configurations(tmp_path, cap
     first = run_sweep(cfg, show_progress=False)
     assert not (tmp_path / "configs").exists()  # a finished sweep keeps everything in runs.json
     # the state an interrupted sweep leaves: a2c finished (its file written), the others not
-    from torchrl_hybrid.experiments import taxi_sweep as ts
-    settings = [ts._merge(ts._merge(ts._merge({"total_frames": 320, "logger": {"progress_bar": False}}, base),
+    from torchrl_hybrid.utils.config import merge_dicts
+    settings = [merge_dicts(merge_dicts(merge_dicts({"total_frames": 320, "logger": {"progress_bar": False}}, base),
                                     {"variant": "a2c"}), {"seed": s, "out_dir": f"{tmp_path}/runs/a2c/seed_{s}"})
                 for s in range(2)]
     marker = [dict(r, final_return=123.0) for r in first["a2c"]]

@@ -9,7 +9,6 @@ the end of a session picks up where it stopped.
 """
 from __future__ import annotations
 
-import copy
 import csv
 import json
 import math
@@ -21,6 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci
@@ -89,15 +89,9 @@ def _one(job: tuple[dict, str]) -> tuple[str, float]:
     d, name = job
     ckpt = (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
-    train_atari(atari_config(_merge(d, {"resume": ckpt, "overwrite": not ckpt})))
+    train_atari(atari_config(merge_dicts(d, {"resume": ckpt, "overwrite": not ckpt})))
     return name, time.perf_counter() - t0
 
-
-def _merge(a: dict, b: dict) -> dict:
-    out = copy.deepcopy(a)
-    for k, v in b.items():
-        out[k] = _merge(out.get(k, {}), v) if isinstance(v, dict) else v
-    return out
 
 
 def run_compare(cfg: CompareConfig) -> dict[str, Any]:
@@ -113,9 +107,9 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                 out = _run_dir(cfg, game, variant, seed)
                 if (out / "summary.json").exists():
                     continue
-                d = _merge({"threads": threads, "env": {"num_threads": threads},
+                d = merge_dicts({"threads": threads, "env": {"num_threads": threads},
                             "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"}}, cfg.base)
-                d = _merge(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
+                d = merge_dicts(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
                                "out_dir": str(out), "env": {"game": game},
                                "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
                 jobs.append((d, f"{game}/{variant}_s{seed}"))

@@ -6,7 +6,6 @@ figure, table and README per comparison.
 """
 from __future__ import annotations
 
-import copy
 import csv
 import json
 import math
@@ -17,6 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
@@ -55,12 +55,6 @@ class GymCompareConfig:
         return self
 
 
-def _merge(a: dict, b: dict) -> dict:
-    out = copy.deepcopy(a)
-    for k, v in b.items():
-        out[k] = _merge(out.get(k, {}), v) if isinstance(v, dict) else v
-    return out
-
 
 def run_one(d: dict) -> tuple[str, float]:
     """One run of the comparison. Whether it resumes is decided here, when it starts: a
@@ -70,7 +64,7 @@ def run_one(d: dict) -> tuple[str, float]:
 
     ckpt = (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
-    train_taxi(config_from_dict(_merge(d, {"resume": ckpt, "overwrite": not ckpt})))
+    train_taxi(config_from_dict(merge_dicts(d, {"resume": ckpt, "overwrite": not ckpt})))
     return d["out_dir"], time.perf_counter() - t0
 
 
@@ -84,7 +78,7 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
             out = Path(cfg.out_dir) / f"{variant}_s{seed}"
             if (out / "summary.json").exists():
                 continue
-            jobs.append(_merge(cfg.base, {"variant": variant, "seed": seed, "out_dir": str(out),
+            jobs.append(merge_dicts(cfg.base, {"variant": variant, "seed": seed, "out_dir": str(out),
                                           "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"}}))
     print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
     t0 = time.perf_counter()

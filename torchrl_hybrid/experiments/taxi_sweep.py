@@ -18,6 +18,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_diff_ci
@@ -70,12 +71,6 @@ def configurations(groups: Sequence[str]) -> dict[str, dict]:
     return out
 
 
-def _merge(a: dict, b: dict) -> dict:
-    out = json.loads(json.dumps(a))
-    for k, v in b.items():
-        out[k] = _merge(out.get(k, {}), v) if isinstance(v, dict) else v
-    return out
-
 
 def _run_batch(args) -> tuple[str, list[dict]]:
     name, cfg_dicts, queue = args
@@ -117,10 +112,10 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
     if cfg.launcher not in LAUNCHERS:
         raise ValueError(f"launcher={cfg.launcher!r}: choose one of {LAUNCHERS}")
     confs = configurations(cfg.groups)
-    base = _merge({"total_frames": cfg.total_frames, "logger": {"progress_bar": False}}, cfg.base)
+    base = merge_dicts({"total_frames": cfg.total_frames, "logger": {"progress_bar": False}}, cfg.base)
     jobs = []
     for name, over in confs.items():
-        dicts = [_merge(_merge(base, over), {"seed": s, "out_dir": f"{cfg.out_dir}/runs/{name}/seed_{s}"})
+        dicts = [merge_dicts(merge_dicts(base, over), {"seed": s, "out_dir": f"{cfg.out_dir}/runs/{name}/seed_{s}"})
                  for s in range(cfg.seeds)]
         jobs.append((name, dicts))
     # the slowest (dual-model) jobs first so that the two workers finish together

@@ -1,13 +1,14 @@
 """Nested dataclass configs from plain (e.g. Hydra) dicts, with the types checked."""
 from __future__ import annotations
 
+import copy
 import dataclasses
 import typing
 from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["dataclass_from_dict"]
+__all__ = ["dataclass_from_dict", "merge_dicts"]
 
 _SCALARS = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
 
@@ -49,3 +50,12 @@ def dataclass_from_dict(cls: type[T], values: dict[str, Any], prefix: str = "") 
         else:
             kwargs[k] = _check(v, hints.get(k, Any), prefix + k)
     return cls(**kwargs)
+
+
+def merge_dicts(a: dict, b: dict) -> dict:
+    """A deep copy of ``a`` with ``b`` merged in: nested dicts merge key by key, any other
+    value of ``b`` replaces ``a``'s (how the studies put per-run settings over a base)."""
+    out = copy.deepcopy(a)
+    for k, v in b.items():
+        out[k] = merge_dicts(out.get(k, {}), v) if isinstance(v, dict) else v
+    return out
