@@ -167,7 +167,8 @@ class EncoderConfig:
 
 @dataclass
 class TaxiConfig:
-    """Every knob of a Taxi run; ``recipes/config/taxi.yaml`` documents each one."""
+    """Every knob of a run of the gymnasium pipeline (Taxi by default); ``recipes/config/taxi.yaml``
+    documents each one."""
 
     variant: str = "hybrid_dual"
     seed: int = 0
@@ -422,8 +423,10 @@ def make_collector(cfg: TaxiConfig, env, actor, device):
 
 
 def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
-    """Trains one agent on Taxi and writes ``metrics.csv``, ``summary.json``,
-    ``learning_curve.png``, ``model.pt`` and a TorchRL trainer checkpoint (``checkpoint/``) into ``cfg.out_dir``. Returns the summary."""
+    """Trains one agent on ``cfg.env`` (Taxi by default; any env with discrete actions and
+    discrete states or vector observations) and writes ``metrics.csv``, ``summary.json``,
+    ``learning_curve.png``, ``model.pt`` and a TorchRL trainer checkpoint (``checkpoint/``)
+    into ``cfg.out_dir``. Returns the summary."""
     cfg.validate()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     # one progress-bar refresh per second (per 30 s when the output is a log file)
