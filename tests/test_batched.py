@@ -10,7 +10,9 @@ from torchrl_hybrid.trainers import VARIANTS, make_hybrid_loss
 from torchrl_hybrid.trainers.batched import (
     BatchedTabularAgents,
     LazyRMSprop,
+    _Demos,
     a2c_terms,
+    bc_loss_terms,
     idm_loss_terms,
     train_taxi_batched,
 )
@@ -50,7 +52,17 @@ def test_batched_losses_equal_torchrl_losses(kind):
     env = make_toy_text_env(num_envs=16, max_episode_steps=3, seed=1)
     batches = iter(Collector(env, actor, frames_per_batch=32, total_frames=32 * 40))
     batch = next(b for b in batches if b["next", "truncated"].any() and b["next", "done"][:, 0].any())
-    ref = loss(TensorDict({"agent": batch, "expert": batch[:0, 0].exclude("next")}, []))
+    # BC at the visited states (the authors' rho): the expert's pair of each visited state
+    from torchrl_hybrid.data import VisitedStateSampler, make_expert_buffer, tabular_state_pairs
+    from torchrl_hybrid.envs import TabularModel
+    from torchrl_hybrid.experts import optimal_policy
+    model = TabularModel.from_gym("Taxi-v4")
+    demos = tabular_state_pairs(model, optimal_policy(model)[0])
+    buffer = make_expert_buffer(demos, sampler=VisitedStateSampler(500), batch_size=32)  # ignored by this sampler
+    buffer.sampler.observe(batch["observation"])
+    expert = buffer.sample()
+    assert expert.batch_size.numel() == batch.numel()  # every state has its pair
+    ref = loss(TensorDict({"agent": batch, "expert": expert}, []))
 
     agents = BatchedTabularAgents(cfg, [0], 500, 6)
     copy_into(agents, actor, critic, idm)
@@ -60,7 +72,12 @@ def test_batched_losses_equal_torchrl_losses(kind):
                     u(("next", "done")).squeeze(-1), 0.99, 0.2, 0.5)
     flat = lambda key: u(key).reshape(1, -1)  # noqa: E731
     got.update(idm_loss_terms(agents, flat("observation"), flat("action"), flat(("next", "observation")), cfg.loss))
-    for k in ("loss_objective", "loss_critic", "loss_entropy", "loss_inverse"):
+    d = _Demos([demos], 500)
+    s = flat("observation")
+    kk = torch.zeros(1, 1, dtype=torch.long)
+    got.update(bc_loss_terms(agents, d.obs[kk, d.at[kk, s]], d.next[kk, d.at[kk, s]], d.has[kk, s], 2.0))
+    assert float(got["bc_batch_size"][0]) == float(ref["bc_batch_size"]) == batch.numel()
+    for k in ("loss_objective", "loss_critic", "loss_entropy", "loss_inverse", "loss_bc"):
         assert torch.allclose(ref[k], got[k][0], atol=1e-5), (k, ref[k], got[k])
     if kind == "dual":
         for k in ("loss_action_embedding", "loss_state_embedding"):

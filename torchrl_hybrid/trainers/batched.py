@@ -293,6 +293,17 @@ def idm_loss_terms(agents: BatchedTabularAgents, s, a, s2, lc) -> dict[str, torc
     return out
 
 
+def bc_loss_terms(agents: BatchedTabularAgents, es, es2, mask, bc_coeff: float, true_labels=None):
+    """``ExpertBCLoss`` (argmax labels) per agent: ``-bc_coeff * mean log pi(M(s, s') | s)``
+    over the expert pairs ``(es, es2)`` ``[K, B]`` where ``mask`` is set (the pairs at the
+    visited states, or all of a uniform sample); ``true_labels`` for the IL baseline."""
+    label = true_labels if true_labels is not None else agents.infer(es, es2)
+    lp = agents.logits(es).log_softmax(-1).gather(-1, label.clamp(min=0).unsqueeze(-1)).squeeze(-1)
+    count = mask.sum(1)
+    mean_lp = (lp * mask).sum(1) / count.clamp(min=1)
+    return {"loss_bc": -bc_coeff * mean_lp, "bc_batch_size": count.float()}
+
+
 class _Demos:
     """Per-agent demo pairs, padded to [K, N]."""
 
@@ -477,12 +488,8 @@ def train_taxi_batched(
                 idx = (torch.rand(K, cfg.demo.batch_size, generator=gen) * demos.n.unsqueeze(1)).long()
                 mask = torch.ones_like(idx, dtype=torch.bool)
             es, es2 = demos.obs[kk, idx], demos.next[kk, idx]
-            label = demos.act[kk, idx] if variant.bc == "true" else agents.infer(es, es2)
-            lp = agents.logits(es).log_softmax(-1).gather(-1, label.clamp(min=0).unsqueeze(-1)).squeeze(-1)
-            count = mask.sum(1)
-            mean_lp = (lp * mask).sum(1) / count.clamp(min=1)
-            terms["loss_bc"] = -(lc.bc_coeff if bc_on else 0.0) * mean_lp
-            terms["bc_batch_size"] = count.float()
+            terms.update(bc_loss_terms(agents, es, es2, mask, lc.bc_coeff if bc_on else 0.0,
+                                       demos.act[kk, idx] if variant.bc == "true" else None))
         total = sum(v.sum() for n, v in terms.items() if n.startswith("loss_"))
         total.backward()
         terms["grad_norm"] = opt.step()
