@@ -126,7 +126,7 @@ def test_more_envs_than_the_paper_and_env_groups(tmp_path):
 
 @pytest.mark.parametrize("bad, match", [
     ({"collector": {"env_groups": 3}}, "env_groups=3 must divide"),
-    ({"collector": {"backend": "ray"}}, "collector.backend='ray'"),
+    ({"collector": {"backend": "slurm"}}, "collector.backend='slurm'"),
     ({"device": "tpu"}, "device='tpu'"),
 ])
 def test_bad_collector_and_device_settings_are_refused(tmp_path, bad, match):
