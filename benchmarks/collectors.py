@@ -23,7 +23,7 @@ def measure(env_id: str, kind: str, workers: int, batches: int, num_envs: int) -
     from torchrl_hybrid.modules import make_mlp_actor_critic, make_tabular_actor_critic
     from torchrl_hybrid.trainers.taxi import config_from_dict, make_collector
 
-    obs, size = observation_kind(env_id)
+    obs, size, _ = observation_kind(env_id)
     n_steps = 2 if obs == "discrete" else 5
     cfg = config_from_dict({"env": {"env_id": env_id, "num_envs": num_envs,
                                     "max_episode_steps": 50 if obs == "discrete" else 500},

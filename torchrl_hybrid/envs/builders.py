@@ -11,10 +11,10 @@ __all__ = ["BACKENDS", "make_gym_env", "make_toy_text_env", "observation_kind"]
 BACKENDS = ("auto", "tabular", "gym", "vector")
 
 
-def observation_kind(env_id: str, env_kwargs: dict | None = None) -> tuple[str, int]:
-    """``("discrete", n_states)`` for a ``Discrete`` observation space (toy-text envs),
-    ``("vector", size)`` for a flat ``Box`` one (CartPole, LunarLander); any other
-    space, or actions that are not ``Discrete``, is refused with what to use instead."""
+def observation_kind(env_id: str, env_kwargs: dict | None = None) -> tuple[str, int, int]:
+    """``("discrete", n_states, n_actions)`` for a ``Discrete`` observation space (toy-text
+    envs), ``("vector", size, n_actions)`` for a flat ``Box`` one (CartPole, LunarLander);
+    any other space, or actions that are not ``Discrete``, is refused with what to use instead."""
     env = gym.make(env_id, **dict(env_kwargs or {}))
     obs, act = env.observation_space, env.action_space
     env.close()
@@ -22,9 +22,9 @@ def observation_kind(env_id: str, env_kwargs: dict | None = None) -> tuple[str, 
         raise ValueError(f"{env_id}: actions are {act}; the hybrid agent needs discrete actions (an inverse model "
                          "over a finite action set)")
     if isinstance(obs, gym.spaces.Discrete):
-        return "discrete", int(obs.n)
+        return "discrete", int(obs.n), int(act.n)
     if isinstance(obs, gym.spaces.Box) and len(obs.shape) == 1:
-        return "vector", int(obs.shape[0])
+        return "vector", int(obs.shape[0]), int(act.n)
     raise ValueError(f"{env_id}: observations are {obs}; this pipeline takes discrete states or flat vectors "
                      "(for Atari frames use recipes/atari.py)")
 

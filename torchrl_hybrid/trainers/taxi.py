@@ -316,42 +316,34 @@ def _check_vector_config(cfg: TaxiConfig, needs_demos: bool = True) -> None:
                          "with demo.path=<folder>")
 
 
-def load_gym_expert(cfg: TaxiConfig):
-    """The expert policy of a vector-observation env: the actor of ``cfg.demo.expert``
-    (``model.pt`` of an earlier run of this pipeline on the same env), rebuilt from the
-    settings stored beside its weights. Returns ``(actor, n_actions)``."""
-    path = Path(cfg.demo.expert) if cfg.demo.expert else None
-    kind, size = observation_kind(cfg.env.env_id, cfg.env.kwargs)
-    import gymnasium as gym
-
-    probe = gym.make(cfg.env.env_id, **cfg.env.kwargs)
-    n_actions = int(probe.action_space.n)
-    probe.close()
-    if path is None:  # demos given as a file: the expert is only needed for its evaluation
-        return None, n_actions
+def load_gym_expert(cfg: TaxiConfig, size: int, n_actions: int):
+    """The expert policy of a vector-observation env (observations of ``size``): the actor
+    of ``cfg.demo.expert`` (``model.pt`` of an earlier run of this pipeline on the same
+    env), rebuilt from the settings stored beside its weights; ``None`` without one."""
+    if not cfg.demo.expert:  # demos given as a file: the expert is only needed for its evaluation
+        return None
+    path = Path(cfg.demo.expert)
     if not path.is_file():
         raise FileNotFoundError(f"demo.expert={path}: no such checkpoint; train an expert first "
                                 f"(variant=a2c out_dir=<dir>) and pass <dir>/model.pt")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=False)
-        saved = ckpt["config"]
-        actor_state = ckpt["actor"]
+        saved, actor_state, enc = ckpt["config"], ckpt["actor"], ckpt["config"]["encoder"]
     except Exception as err:  # not a model.pt of this pipeline
         raise ValueError(f"demo.expert={path} is not a model.pt written by this pipeline ({err})") from err
     if saved["env"]["env_id"] != cfg.env.env_id or saved["env"].get("kwargs", {}) != cfg.env.kwargs:
         raise ValueError(f"demo.expert={path} was trained on {saved['env']['env_id']} {saved['env'].get('kwargs', {})}, "
                          f"this run plays {cfg.env.env_id} {cfg.env.kwargs}")
-    enc = saved.get("encoder", {"hidden": 64, "num_layers": 2})
     actor, _ = make_mlp_actor_critic(size, n_actions, enc["hidden"], enc["num_layers"])
     actor.load_state_dict(actor_state)
-    return actor.eval(), n_actions
+    return actor.eval()
 
 
-def make_gym_demos(cfg: TaxiConfig, expert_actor):
-    """State-only demos of a vector-observation env: ``demo.path`` if given, else
-    ``demo.num_trajectories`` whole episodes of ``expert_actor`` (greedy unless
-    ``demo.deterministic=false``), the true actions kept for diagnostics only."""
-    kind, size = observation_kind(cfg.env.env_id, cfg.env.kwargs)
+def make_gym_demos(cfg: TaxiConfig, expert_actor, size: int):
+    """State-only demos of a vector-observation env (observations of ``size``):
+    ``demo.path`` if given, else ``demo.num_trajectories`` whole episodes of
+    ``expert_actor`` (greedy unless ``demo.deterministic=false``), the true actions kept
+    for diagnostics only."""
     if cfg.demo.path:
         demos, meta = load_demos(cfg.demo.path, obs_shape=(size,), obs_dtype=torch.float32)
         if meta.get("env_id", cfg.env.env_id) != cfg.env.env_id:
@@ -440,7 +432,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
 
-    kind, size = observation_kind(cfg.env.env_id, cfg.env.kwargs)
+    kind, size, A = observation_kind(cfg.env.env_id, cfg.env.kwargs)
     model = expert_actor = None
     if kind == "discrete":
         model = tabular_model(cfg.env.env_id, cfg.env.kwargs)
@@ -449,8 +441,8 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
     else:  # vector observations: the expert is a checkpoint (or its recorded demos); plain A2C needs neither
         needs_demos = variant.bc is not None or variant.inverse_model is not None
         _check_vector_config(cfg, needs_demos)
-        expert_actor, A = load_gym_expert(cfg)
-        demos = make_gym_demos(cfg, expert_actor) if needs_demos else None
+        expert_actor = load_gym_expert(cfg, size, A)
+        demos = make_gym_demos(cfg, expert_actor, size) if needs_demos else None
 
     env = make_toy_text_env(
         cfg.env.env_id, cfg.env.num_envs, backend=cfg.env.backend,
@@ -537,6 +529,17 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
         max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 20_000, env_kwargs=cfg.env.kwargs,
     )
     final_returns = evaluate_policy(final_env, actor, cfg.env.max_episode_steps)
+    # the expert's own return, never assumed: exact from the start distribution for the built-in
+    # expert; for an expert checkpoint its greedy return on the same final episodes (None without one)
+    optimal_return = None
+    if model is not None:
+        optimal_return = expected_return(model, expert, cfg.env.max_episode_steps)
+    elif expert_actor is not None:
+        expert_env = make_toy_text_env(cfg.env.env_id, cfg.logger.final_eval_episodes, backend=cfg.env.backend,
+                                       max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 20_000,
+                                       env_kwargs=cfg.env.kwargs)
+        optimal_return = float(evaluate_policy(expert_env, expert_actor, cfg.env.max_episode_steps).mean())
+        expert_env.close()
     summary = {
         "variant": cfg.variant,
         "seed": cfg.seed,
@@ -544,14 +547,7 @@ def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
         "final_return": float(final_returns.mean()),
         "final_return_std": float(final_returns.std()),
         "final_eval_episodes": int(final_returns.numel()),
-        # the expert's own exact return from the start distribution, within the episode cap
-        # vector observations: the expert checkpoint's own greedy return on the same final episodes (None without one)
-        "optimal_return": expected_return(model, expert, cfg.env.max_episode_steps) if model is not None
-        else None if expert_actor is None
-        else float(evaluate_policy(make_toy_text_env(cfg.env.env_id, cfg.logger.final_eval_episodes,
-                                                     backend=cfg.env.backend, max_episode_steps=cfg.env.max_episode_steps,
-                                                     seed=cfg.seed + 20_000, env_kwargs=cfg.env.kwargs),
-                                   expert_actor, cfg.env.max_episode_steps).mean()),
+        "optimal_return": optimal_return,
         IDM_ACCURACY_EXPERT: inverse_model_accuracy(inverse_model, demos)
         if inverse_model is not None and labelled else None,
         "train_time_s": round(train_time, 2),
