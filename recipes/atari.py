@@ -14,6 +14,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_hybrid.trainers.atari import atari_config, train_atari
+from torchrl_hybrid.utils.process import configure_process
 
 
 def run(cfg: DictConfig, **overrides) -> None:
@@ -21,7 +22,9 @@ def run(cfg: DictConfig, **overrides) -> None:
     raw.pop("hydra", None)
     raw.update(overrides)
     try:
-        summary = train_atari(atari_config(raw))
+        config = atari_config(raw)
+        configure_process(config.threads)
+        summary = train_atari(config)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

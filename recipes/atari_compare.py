@@ -15,12 +15,14 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_hybrid.experiments.atari_compare import CompareConfig, run_compare
+from torchrl_hybrid.utils.process import configure_process
 
 
 @hydra.main(config_path="config", config_name="atari_compare", version_base=None)
 def main(cfg: DictConfig) -> None:
     raw = OmegaConf.to_container(cfg, resolve=True)
     raw.pop("hydra", None)
+    configure_process(None)
     try:
         run_compare(CompareConfig(**raw))
     except (ValueError, TypeError, FileNotFoundError) as err:

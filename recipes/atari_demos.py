@@ -11,10 +11,12 @@ from omegaconf import DictConfig
 from omegaconf.errors import MissingMandatoryValue
 
 from torchrl_hybrid.trainers.atari import record_demos
+from torchrl_hybrid.utils.process import configure_process
 
 
 @hydra.main(config_path="config", config_name="atari_demos", version_base=None)
 def main(cfg: DictConfig) -> None:
+    configure_process(None)
     try:
         meta = record_demos(cfg.expert, cfg.out, num_trajectories=cfg.num_trajectories, num_envs=cfg.num_envs,
                             seed=cfg.seed, deterministic=cfg.deterministic, max_steps=cfg.max_steps,

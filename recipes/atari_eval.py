@@ -15,10 +15,12 @@ from omegaconf import DictConfig
 from omegaconf.errors import MissingMandatoryValue
 
 from torchrl_hybrid.trainers.atari import evaluate_atari, load_expert
+from torchrl_hybrid.utils.process import configure_process
 
 
 @hydra.main(config_path="config", config_name="atari_eval", version_base=None)
 def main(cfg: DictConfig) -> None:
+    configure_process(None)
     try:
         actor, ckpt = load_expert(cfg.checkpoint, cfg.device)
         game = ckpt["config"]["env"]["game"]

@@ -20,6 +20,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_hybrid.experiments.gym_compare import GymCompareConfig, run_gym_compare
+from torchrl_hybrid.utils.process import configure_process
 
 
 @hydra.main(config_path="config", config_name="taxi", version_base=None)
@@ -30,6 +31,7 @@ def main(cfg: DictConfig) -> None:
     out_dir = raw.pop("out_dir")
     for k in ("variant", "seed", "resume", "overwrite"):  # set per run by the comparison
         raw.pop(k, None)
+    configure_process(None)
     try:
         known = ("variants", "seeds", "workers", "launcher", "address", "max_retries")
         unknown = set(options) - set(known)

@@ -16,6 +16,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
+from torchrl_hybrid.utils.process import configure_process
 
 
 def run(cfg: DictConfig) -> None:
@@ -24,6 +25,7 @@ def run(cfg: DictConfig) -> None:
     raw.pop("hydra", None)
     try:
         config = config_from_dict(raw)
+        configure_process(config.threads)
         if config.engine == "batched":
             from torchrl_hybrid.trainers.batched import train_taxi_batched
             from torchrl_hybrid.utils.files import prepare_out_dir

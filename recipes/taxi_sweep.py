@@ -14,12 +14,14 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_hybrid.experiments.taxi_sweep import SweepConfig, run_sweep
+from torchrl_hybrid.utils.process import configure_process
 
 
 @hydra.main(config_path="config", config_name="taxi_sweep", version_base=None)
 def main(cfg: DictConfig) -> None:
     raw = OmegaConf.to_container(cfg, resolve=True)
     raw.pop("hydra", None)
+    configure_process(1)
     try:
         sweep = SweepConfig(**raw)
         run_sweep(sweep)

@@ -39,7 +39,6 @@ def _killing(target: str, times: int):
         import signal
         import threading
         import time
-        from pathlib import Path
 
         from torchrl_hybrid.experiments.gym_compare import run_one
 

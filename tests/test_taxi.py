@@ -178,8 +178,9 @@ def test_robust_bc_options_run_in_the_pipeline(tmp_path):
 
     rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
     assert "bc_kept" in rows[-1] and "bc_policy_entropy" in rows[-1]
-    with pytest.raises(ValueError, match="labels='hard'"):
+    with pytest.raises(ValueError, match=r"loss.bc_labels must be one of \('argmax', 'soft'\), got 'hard'"):
         train_taxi(tiny(tmp_path / "x", **{"loss.bc_labels": "hard"}))
+    assert not (tmp_path / "x").exists()  # refused before anything is written
 
 
 def test_frozenlake_8x8_through_env_kwargs_with_its_own_optimal_return(tmp_path):

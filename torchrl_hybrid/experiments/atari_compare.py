@@ -85,8 +85,10 @@ def _one(job: tuple[dict, str]) -> tuple[str, float]:
     (or whose worker died and was restarted) goes on from its last checkpoint; one cut
     before its first checkpoint starts again (replacing its partial curve)."""
     from torchrl_hybrid.trainers.atari import atari_config, train_atari
+    from torchrl_hybrid.utils.process import configure_worker
 
     d, name = job
+    configure_worker(d.get("threads"))
     ckpt = (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
     train_atari(atari_config(merge_dicts(d, {"resume": ckpt, "overwrite": not ckpt})))

@@ -61,7 +61,9 @@ def run_one(d: dict) -> tuple[str, float]:
     run restarted after its worker died goes on from its last checkpoint (or starts
     again, replacing its partial files, when it died before the first one)."""
     from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
+    from torchrl_hybrid.utils.process import configure_worker
 
+    configure_worker(d.get("threads"))
     ckpt = (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
     train_taxi(config_from_dict(merge_dicts(d, {"resume": ckpt, "overwrite": not ckpt})))

@@ -74,12 +74,11 @@ def configurations(groups: Sequence[str]) -> dict[str, dict]:
 
 def _run_batch(args) -> tuple[str, list[dict]]:
     name, cfg_dicts, queue = args
-    import torch
-
     from torchrl_hybrid.trainers.batched import train_taxi_batched
     from torchrl_hybrid.trainers.taxi import config_from_dict
+    from torchrl_hybrid.utils.process import configure_worker
 
-    torch.set_num_threads(1)
+    configure_worker(1)
     configs = [config_from_dict(d) for d in cfg_dicts]
     pending = [0]
 

@@ -42,7 +42,6 @@ import torch
 import torch.nn.functional as F
 
 from torchrl_hybrid.data.expert import EXPERT_ACTION_KEY
-from torchrl_hybrid.envs.tabular import TabularModel
 from torchrl_hybrid.experts import expected_return
 from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.taxi import TaxiConfig, make_taxi_demos, tabular_model
@@ -366,8 +365,6 @@ def train_taxi_batched(
         raise ValueError("the batched fast path supports demo.rho = visited | uniform; use train_taxi for the curriculum")
     if cfg.loss.idm_forward_coeff > 0:
         raise ValueError("the batched fast path has no forward head; use train_taxi for loss.idm_forward_coeff > 0")
-    if cfg.threads > 0:
-        torch.set_num_threads(cfg.threads)
     variant = get_variant(cfg.variant)
     model = tabular_model(cfg.env.env_id, cfg.env.kwargs)
     S, A, K, E, T = model.n_states, model.n_actions, len(configs), cfg.env.num_envs, cfg.loss.n_steps

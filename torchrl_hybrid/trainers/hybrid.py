@@ -264,11 +264,13 @@ def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
 
 
 def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str, ...],
-                   ignore: tuple[str, ...] = ()) -> int:
+                   ignore: tuple[str, ...] = (), defaults: dict | None = None) -> int:
     """Loads ``out/checkpoint`` into ``trainer`` after checking that the run that wrote
     it (``out/config.json``) agrees with ``settings`` on every entry under ``keys``
-    (dotted names in ``ignore`` may differ: thread counts, the device). Returns the
-    frames the checkpoint had collected, 0 when there is none (a fresh start)."""
+    (dotted names in ``ignore`` may differ: thread counts, the device). A setting the
+    saved config lacks (added to the project after that run started) counts as its
+    value in ``defaults``. Returns the frames the checkpoint had collected, 0 when there
+    is none (a fresh start)."""
     from torchrl_hybrid.utils.files import check_memmap_folder, read_json
 
     ckpt, saved_path = out / "checkpoint", out / "config.json"
@@ -280,6 +282,8 @@ def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str,
                          "pass overwrite=true to start again there, or choose another out_dir")
     saved = _flatten({k: v for k, v in read_json(saved_path, "run config").items() if k in keys})
     now = _flatten({k: v for k, v in settings.items() if k in keys})
+    for k, v in _flatten({k: v for k, v in (defaults or {}).items() if k in keys}).items():
+        saved.setdefault(k, v)
     diff = sorted(k for k in set(saved) | set(now) if k not in ignore and saved.get(k) != now.get(k))
     if diff:
         was = ", ".join(f"{k}: {saved.get(k)!r} -> {now.get(k)!r}" for k in diff)

@@ -15,9 +15,27 @@ import math
 import multiprocessing as mp
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["LAUNCHERS", "init_ray", "run_jobs"]
+__all__ = ["LAUNCHERS", "in_worker", "init_ray", "run_jobs"]
 
 LAUNCHERS = ("local", "ray")
+
+_IN_WORKER = False  # true in the processes run_jobs starts (local pool workers, Ray workers)
+
+
+def _mark_worker() -> None:
+    global _IN_WORKER
+    _IN_WORKER = True
+
+
+def in_worker() -> bool:
+    """Whether this process is a worker that :func:`run_jobs` started (so a job may set
+    process-wide settings such as torch's thread count), rather than the caller's own."""
+    return _IN_WORKER
+
+
+def _ray_job(fn: Callable[[Any], Any], job: Any) -> Any:
+    _mark_worker()
+    return fn(job)
 
 
 def _ray():
@@ -53,7 +71,10 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
     """Runs ``fn(job)`` for every job and yields the results in the order they finish.
 
     Args:
-        fn: a picklable function (module level for ``local``; Ray also takes closures).
+        fn: a picklable function (module level for ``local``; Ray also takes closures). In the
+            worker processes started here :func:`in_worker` is true, so a job may set that
+            process's settings (:func:`~torchrl_hybrid.utils.process.configure_worker`);
+            with ``workers=1`` jobs run in the caller's process and leave its settings alone.
         jobs: its arguments.
         launcher: ``"local"`` (``workers`` spawned processes; 1 = in this process) or
             ``"ray"`` (Ray tasks of ``cpus_per_job`` CPUs each; at most ``workers`` at a
@@ -72,13 +93,13 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
         if workers == 1:
             yield from map(fn, jobs)
             return
-        with mp.get_context("spawn").Pool(workers) as pool:
+        with mp.get_context("spawn").Pool(workers, initializer=_mark_worker) as pool:
             yield from pool.imap_unordered(fn, jobs)
         return
     ray = _ray()
     started_here = init_ray(address, num_cpus=int(math.ceil(workers * cpus_per_job)))
-    remote = ray.remote(num_cpus=cpus_per_job, max_retries=max_retries)(fn)
-    pending = {remote.remote(job): i for i, job in enumerate(jobs)}
+    remote = ray.remote(num_cpus=cpus_per_job, max_retries=max_retries)(_ray_job)
+    pending = {remote.remote(fn, job): i for i, job in enumerate(jobs)}
     try:
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)

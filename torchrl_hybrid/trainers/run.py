@@ -1,0 +1,375 @@
+"""One run assembly for every env: build, resume, train, finish.
+
+An env family plugs in through :class:`EnvFamily`: it builds the envs and demos
+(:meth:`EnvFamily.setup`), the actor, critic and the inverse model's state encoder
+(:meth:`EnvFamily.networks`, e.g. the one-hot encoder for toy-text, an MLP for
+vector observations, the paper's CNN for Atari), the collector, its own hooks,
+the evaluation columns and the final evaluation. Everything else is written once,
+here: the variant's inverse model, losses and optimiser, the logger, TorchRL's
+``Trainer`` with its checkpoints, the expert buffer and BC schedule, the learning
+curve, resuming, and ``summary.json`` / ``model.pt`` / ``learning_curve.png``.
+
+The gymnasium family (Taxi, FrozenLake, CartPole, ...) is
+:class:`~torchrl_hybrid.trainers.taxi.GymFamily`, Atari's is
+:class:`~torchrl_hybrid.trainers.atari.AtariFamily`; ``train_taxi(cfg)`` and
+``train_atari(cfg)`` are ``train_run(cfg, family)``.
+
+Process-wide settings (torch threads, log levels, progress-bar refresh) are not
+changed here: the recipes set them (:func:`~torchrl_hybrid.utils.process.configure_process`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import torch
+from torchrl.record.loggers import get_logger
+from torchrl.trainers import UpdateWeights
+
+from torchrl_hybrid.data import EXPERT_ACTION_KEY
+from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics
+from torchrl_hybrid.trainers.hooks import MetricsHook
+from torchrl_hybrid.trainers.hybrid import (
+    Variant,
+    attach_demonstrations,
+    get_variant,
+    make_hybrid_loss,
+    make_trainer,
+    param_groups,
+    resume_trainer,
+)
+from torchrl_hybrid.utils.device import resolve_device
+from torchrl_hybrid.utils.files import prepare_out_dir
+from torchrl_hybrid.utils.plotting import plot_learning_curve
+
+__all__ = ["LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig", "LOGGERS", "BC_LABELS", "EnvFamily", "Setup", "Networks", "Run",
+           "build_run", "train_run", "finish_run", "make_inverse_model"]
+
+LOGGERS = ("csv", "tensorboard", "wandb", "none")
+BC_LABELS = ("argmax", "soft")
+CLIPS = ("global", "per_group")
+
+
+@dataclass
+class LossConfig:
+    """The loss settings of every env; the defaults are the authors' Taxi code, Atari's
+    config overrides those the paper sets otherwise (``AtariLossConfig``)."""
+
+    n_steps: int = 2
+    gamma: float = 0.99
+    critic_coeff: float = 0.2
+    entropy_coeff: float = 0.5
+    idm_action_coeff: float = 2.0
+    idm_embedding_coeff: float = 0.1
+    idm_forward_coeff: float = 0.0    # the forward head P_f over next states (discrete states only)
+    bc_coeff: float = 2.0
+    bc_start_frames: int = 0
+    bc_labels: str = "argmax"         # argmax (the paper) | soft (cross-entropy to P_i)
+    bc_confidence: float = 0.0         # clone only pairs with max P_i >= this (0: all)
+    bc_entropy_floor: float = 0.0      # penalise policy entropy below this on expert states (0: off)
+    bc_ready_accuracy: float = 0.0     # >0: BC starts once the inverse model's held-out accuracy reaches this
+
+    def validate(self) -> None:
+        _need(self.n_steps >= 1, f"loss.n_steps must be >= 1, got {self.n_steps}")
+        _need(0.0 <= self.gamma <= 1.0, f"loss.gamma must be in [0, 1], got {self.gamma}")
+        _need(self.bc_labels in BC_LABELS, f"loss.bc_labels must be one of {BC_LABELS}, got {self.bc_labels!r}")
+        _need(0.0 <= self.bc_confidence < 1.0, f"loss.bc_confidence must be in [0, 1), got {self.bc_confidence}")
+        _need(0.0 <= self.bc_ready_accuracy <= 1.0,
+              f"loss.bc_ready_accuracy must be in [0, 1], got {self.bc_ready_accuracy}")
+        _need(self.bc_start_frames >= 0, f"loss.bc_start_frames must be >= 0, got {self.bc_start_frames}")
+
+    def loss_kwargs(self) -> dict[str, Any]:
+        """The keyword arguments of :func:`~torchrl_hybrid.trainers.hybrid.make_hybrid_loss`."""
+        return {k: getattr(self, k) for k in (
+            "gamma", "critic_coeff", "entropy_coeff", "idm_action_coeff", "idm_embedding_coeff", "idm_forward_coeff",
+            "bc_coeff", "bc_labels", "bc_confidence", "bc_entropy_floor")}
+
+
+@dataclass
+class OptimConfig:
+    """RMSprop over the de-duplicated parameters (policy, inverse model), gradient clipping."""
+
+    lr: float = 1e-3
+    eps: float = 1e-5
+    alpha: float = 0.99
+    max_grad_norm: float = 0.5
+    clip: str = "global"  # global: one norm over all parameters | per_group: policy and inverse model apart
+
+    def validate(self) -> None:
+        _need(self.lr > 0, f"optim.lr must be > 0, got {self.lr}")
+        _need(self.clip in CLIPS, f"optim.clip must be one of {CLIPS}, got {self.clip!r}")
+
+
+@dataclass
+class DemoConfig:
+    """Where the expert's state pairs come from and how the BC term samples them; each env
+    family adds its own demo settings."""
+
+    path: str | None = None  # a folder of recorded demos (save_demos / recipes/atari_demos.py)
+    batch_size: int = 32     # expert pairs per optimisation step
+    curriculum_k0: int = 10  # curriculum rho: first k steps of each trajectory at the start ...
+    curriculum_frames_per_step: int = 8000  # ... one step more every this many frames
+
+
+@dataclass
+class LoggerConfig:
+    """The learning curve, TorchRL's logger, progress bar and checkpoints; each env family
+    adds its evaluation settings."""
+
+    backend: str = "csv"          # csv | tensorboard | wandb | none (metrics.csv is always written)
+    log_every_frames: int = 2000  # frames between learning-curve rows
+    progress_bar: bool = True
+    checkpoint: bool = True       # TorchRL trainer checkpoints in out_dir/checkpoint (what resume=true reads)
+
+    def validate(self) -> None:
+        _need(self.backend in LOGGERS, f"logger.backend must be one of {LOGGERS}, got {self.backend!r}")
+        _need(self.log_every_frames >= 1, f"logger.log_every_frames must be >= 1, got {self.log_every_frames}")
+
+
+def _need(ok: bool, msg: str) -> None:
+    if not ok:
+        raise ValueError(msg)
+
+
+@dataclass
+class Setup:
+    """What :meth:`EnvFamily.setup` builds: the training env (or the collector's envs),
+    the action count, the demos (``None`` for plain A2C) and whatever else the family
+    keeps for its later steps (``extra``)."""
+
+    env: Any
+    n_actions: int
+    demos: Any = None
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass
+class Networks:
+    """What :meth:`EnvFamily.networks` builds. ``inverse_encoder()`` gives the inverse
+    model's state encoder: a fresh one (toy-text, vector observations) or the actor's
+    shared one (Atari). ``collection_policy`` defaults to the actor."""
+
+    actor: Any
+    critic: Any
+    inverse_encoder: Callable[[], torch.nn.Module]
+    collection_policy: Any = None
+    encoder: Any = None  # the shared encoder, where there is one
+
+
+class EnvFamily:
+    """What an env brings to :func:`build_run`. Subclasses set the class attributes and
+    override the methods that raise here."""
+
+    name = "env"
+    resume_keys: tuple[str, ...] = ()   # a checkpoint is resumed only by a run agreeing on these
+    resume_ignore: tuple[str, ...] = ()  # dotted names that may differ on resume (thread counts)
+    checkpoints_per_run = 4
+    return_key: Any = ("next", "episode_reward")
+    pbar_keys: tuple[str, ...] = ("return_mean",)
+    loss_extra: dict = {}                 # more make_hybrid_loss arguments
+
+    def setup(self, cfg, variant: Variant, device: torch.device, generator: torch.Generator) -> Setup:
+        raise NotImplementedError
+
+    def networks(self, cfg, variant: Variant, setup: Setup) -> Networks:
+        raise NotImplementedError
+
+    def frame_skip(self, setup: Setup) -> int:
+        """Game frames per agent step; ``total_frames`` and the BC schedule count game frames."""
+        return 1
+
+    def collector(self, cfg, setup: Setup, policy, device: torch.device, total_steps: int):
+        raise NotImplementedError
+
+    def uses_workers(self, cfg) -> bool:
+        """Whether the collector steps the envs in other processes (their policy copies get
+        the learner's weights after every batch)."""
+        return False
+
+    def sampler(self, cfg, setup: Setup):
+        """rho: the expert buffer's sampler (``None``: uniform)."""
+        return None
+
+    def register_hooks(self, run: "Run") -> None:
+        """Hooks of this family, registered before the learning curve's."""
+
+    def register_late_hooks(self, run: "Run") -> None:
+        """Hooks registered after the learning curve's (e.g. the envs' run state)."""
+
+    def evaluator(self, run: "Run") -> Callable[[], dict[str, float]]:
+        """Extra learning-curve columns, computed every ``logger.log_every_frames``."""
+        return dict
+
+    def finish(self, run: "Run") -> tuple[dict, dict]:
+        """After training: the summary's family entries and ``model.pt``'s extra entries."""
+        return {}, {}
+
+    def experiment_name(self, cfg) -> str:
+        return f"{cfg.variant}_s{cfg.seed}"
+
+    def title(self, cfg) -> str:
+        return f"{cfg.variant}, seed {cfg.seed}"
+
+    def plot_kwargs(self, run: "Run", summary: dict) -> dict:
+        return {}
+
+    def close(self, run: "Run") -> None:
+        """Closes what :meth:`setup` opened besides the collector's envs."""
+
+
+@dataclass
+class Run:
+    """Everything :func:`build_run` wires together; ``run.trainer.train()`` trains it."""
+
+    cfg: Any
+    family: EnvFamily
+    variant: Variant
+    setup: Setup
+    trainer: Any
+    collector: Any
+    actor: Any
+    critic: Any
+    encoder: Any
+    inverse_model: Any
+    collection_policy: Any
+    loss: Any
+    metrics: MetricsHook | None
+    out: Path
+    device: torch.device
+    resumed_from: int = 0
+    lock: Any = None  # the out_dir lock (released when the run is finished or the process ends)
+    train_time_s: float = 0.0
+
+    @property
+    def env(self):
+        return self.setup.env
+
+    @property
+    def demos(self):
+        return self.setup.demos
+
+
+def make_inverse_model(kind: str | None, encoder: torch.nn.Module, n_actions: int, *, d_state: int = 128,
+                       d: int = 128, rank: int = 2, mlp_layers: int = 2, n_states: int | None = None):
+    """The variant's inverse model: ``"dual"`` (the paper's low-rank tensor model; with
+    ``n_states`` also its forward head), ``"mlp"`` (the MLP baseline) or ``None``."""
+    if kind == "dual":
+        return DualInverseDynamics(encoder, n_actions, d_state=d_state, d=d, rank=rank, n_states=n_states)
+    if kind == "mlp":
+        return MLPInverseDynamics(encoder, n_actions, d_state=d_state, hidden=d, num_layers=mlp_layers)
+    return None
+
+
+def build_run(cfg, family: EnvFamily) -> Run:
+    """Builds the envs, networks, losses, collector and TorchRL trainer of one run (hooks
+    registered, checkpoint resumed when ``cfg.resume``), without training."""
+    cfg.validate()
+    device = resolve_device(cfg.device)  # networks, learner, demos; the envs stay on the CPU
+    variant = get_variant(cfg.variant)
+    out = Path(cfg.out_dir)
+    lock = prepare_out_dir(out, resume=cfg.resume, overwrite=cfg.overwrite)  # held while the run lives
+    torch.manual_seed(cfg.seed)
+    setup = family.setup(cfg, variant, device, torch.Generator().manual_seed(cfg.seed))
+    nets = family.networks(cfg, variant, setup)
+    n_states = setup.extra.get("n_states") if cfg.loss.idm_forward_coeff > 0 else None
+    inverse_model = make_inverse_model(variant.inverse_model, nets.inverse_encoder() if variant.inverse_model else None,
+                                       setup.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
+                                       mlp_layers=cfg.mlp_layers, n_states=n_states)
+    loss = make_hybrid_loss(variant, nets.actor, nets.critic, inverse_model, expert_action_key=EXPERT_ACTION_KEY,
+                            **cfg.loss.loss_kwargs(), **family.loss_extra).to(device)  # moves every network
+    optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
+    skip = family.frame_skip(setup)
+    policy = nets.collection_policy if nets.collection_policy is not None else nets.actor
+    collector = family.collector(cfg, setup, policy, device, -(-cfg.total_frames // skip))
+    logger = None
+    if cfg.logger.backend != "none":
+        logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"), experiment_name=family.experiment_name(cfg))
+    frames_per_batch = cfg.frames_per_batch * skip
+    trainer = make_trainer(
+        collector=collector, loss=loss, optimizer=optimizer, total_frames=cfg.total_frames,
+        clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
+        save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
+        save_trainer_interval=max(cfg.total_frames // family.checkpoints_per_run, frames_per_batch),
+        clip_per_group=cfg.optim.clip == "per_group", frame_skip=skip,
+    )
+    run = Run(cfg, family, variant, setup, trainer, collector, nets.actor, nets.critic, nets.encoder, inverse_model,
+              policy, loss, None, out, device, 0, lock)
+    family.register_hooks(run)
+    if family.uses_workers(cfg):  # the workers' policy copies get the learner's weights after every batch
+        UpdateWeights(collector, update_weights_interval=1).register(trainer)
+    if variant.bc is not None:
+        lc = cfg.loss
+        attach_demonstrations(trainer, loss, setup.demos, sampler=family.sampler(cfg, setup),
+                              batch_size=cfg.demo.batch_size, bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
+                              bc_ready_accuracy=lc.bc_ready_accuracy, include_expert_actions=variant.bc == "true",
+                              device=device)
+    run.metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, family.evaluator(run),
+                              pbar_keys=family.pbar_keys, return_key=family.return_key)
+    run.metrics.register(trainer)
+    family.register_late_hooks(run)
+    settings = dataclasses.asdict(cfg)
+    if cfg.resume:
+        run.resumed_from = resume_trainer(trainer, out, settings, family.resume_keys, family.resume_ignore,
+                                          defaults=dataclasses.asdict(type(cfg)()))
+    (out / "config.json").write_text(json.dumps(settings, indent=2))
+    return run
+
+
+def finish_run(run: Run) -> dict[str, Any]:
+    """After ``run.trainer.train()``: the family's final evaluation, then ``summary.json``,
+    ``model.pt`` and ``learning_curve.png`` in ``out_dir``; closes the run. Returns the summary."""
+    cfg, trainer = run.cfg, run.trainer
+    try:
+        results, model_extra = run.family.finish(run)
+        train_time = max(run.train_time_s, 1e-9)
+        summary = {
+            **results.pop("head", {}), "variant": cfg.variant, "seed": cfg.seed, "frames": int(trainer.collected_frames),
+            **results,
+            "resumed_from_frames": run.resumed_from,
+            "train_time_s": round(train_time, 2),  # this piece only, when resumed
+            "frames_per_s": round((trainer.collected_frames - run.resumed_from) / train_time, 1),
+            "config": dataclasses.asdict(cfg),
+        }
+        (run.out / "summary.json").write_text(json.dumps(summary, indent=2))
+        torch.save({"actor": run.actor.state_dict(), "critic": run.critic.state_dict(),
+                    "inverse_model": None if run.inverse_model is None else run.inverse_model.state_dict(),
+                    **model_extra, "config": dataclasses.asdict(cfg)}, run.out / "model.pt")
+        plot_learning_curve(run.metrics.rows, run.out / "learning_curve.png", title=run.family.title(cfg),
+                            **run.family.plot_kwargs(run, summary))
+    finally:
+        close_run(run)
+    return summary
+
+
+def close_run(run: Run) -> None:
+    """Shuts the collector (and its workers) down, closes the family's other envs and
+    releases ``out_dir``."""
+    try:
+        run.collector.shutdown()
+        run.family.close(run)
+    finally:
+        if run.lock is not None:
+            run.lock.close()
+
+
+def train_run(cfg, family: EnvFamily) -> dict[str, Any]:
+    """Builds, trains and finishes one run; returns its summary (also in ``summary.json``)."""
+    run = build_run(cfg, family)
+    try:
+        t0 = time.perf_counter()
+        run.trainer.train()
+        run.train_time_s = time.perf_counter() - t0
+    except BaseException:
+        close_run(run)
+        raise
+    return finish_run(run)
+
+
+def finite(x) -> float | None:
+    """``x`` as a float, ``None`` for missing or NaN (JSON has no NaN)."""
+    return None if x is None or not math.isfinite(x) else float(x)
