@@ -4,7 +4,8 @@
     python recipes/atari_demos.py expert=experts/pong/model.pt out=demos/pong   # 2. state-only demos
     python recipes/atari.py env.game=Pong demo.path=demos/pong                  # 3. the hybrid agent
 
-Options: recipes/config/atari.yaml.
+Options: recipes/config/atari.yaml, whose schema (every setting, its default and what it does)
+is AtariConfig in torchrl_hybrid/trainers/atari.py; `--cfg job` prints them all.
 """
 from __future__ import annotations
 
@@ -13,8 +14,11 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from torchrl_hybrid.configs import register_configs
 from torchrl_hybrid.trainers.atari import atari_config, train_atari
 from torchrl_hybrid.utils.process import configure_process
+
+register_configs()  # the schemas recipes/config/*.yaml start from
 
 
 def run(cfg: DictConfig, **overrides) -> None:

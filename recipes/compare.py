@@ -19,8 +19,11 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from torchrl_hybrid.configs import register_configs
 from torchrl_hybrid.experiments.gym_compare import GymCompareConfig, run_gym_compare
 from torchrl_hybrid.utils.process import configure_process
+
+register_configs()  # the schema of taxi.yaml and its presets (compare.* is added with +)
 
 
 @hydra.main(config_path="config", config_name="taxi", version_base=None)

@@ -4,7 +4,8 @@
     python recipes/taxi.py variant=a2c seed=3    # a baseline
     python recipes/taxi.py demo.eta=0.5 out_dir=/tmp/eta05
 
-Every option is documented in recipes/config/taxi.yaml. Writes metrics.csv,
+Every option is documented in the schema of recipes/config/taxi.yaml (TaxiConfig in
+torchrl_hybrid/trainers/taxi.py; `--cfg job` prints them all). Writes metrics.csv,
 summary.json, learning_curve.png, model.pt, config.json and a TorchRL checkpoint/ folder
 into ``out_dir`` (``resume=true`` continues it, ``overwrite=true`` replaces it).
 """
@@ -15,8 +16,11 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from torchrl_hybrid.configs import register_configs
 from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
 from torchrl_hybrid.utils.process import configure_process
+
+register_configs()  # the schemas recipes/config/*.yaml start from
 
 
 def run(cfg: DictConfig) -> None:

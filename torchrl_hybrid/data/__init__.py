@@ -1,4 +1,4 @@
-"""Expert state-pair datasets, samplers (rho) and demo noise."""
+"""Expert state-pair datasets (our own format and local Minari datasets), samplers (rho) and demo noise."""
 from torchrl_hybrid.data.expert import (
     EXPERT_ACTION_KEY,
     load_demos,
@@ -9,6 +9,7 @@ from torchrl_hybrid.data.expert import (
     tabular_trajectories,
     validate_demos,
 )
+from torchrl_hybrid.data.minari import load_minari_demos
 from torchrl_hybrid.data.noise import apply_demo_noise
 from torchrl_hybrid.data.samplers import CurriculumSampler, VisitedStateSampler
 
@@ -18,6 +19,7 @@ __all__ = [
     "VisitedStateSampler",
     "apply_demo_noise",
     "load_demos",
+    "load_minari_demos",
     "make_expert_buffer",
     "pairs_from_trajectories",
     "save_demos",

@@ -50,69 +50,106 @@ __all__ = ["AtariConfig", "AtariFamily", "AtariRun", "atari_config", "build_atar
 ATARI_VARIANTS = ("hybrid_dual", "hybrid_mlp", "bc_dual", "a2c")
 
 
+# The settings below are the Hydra schema of recipes/config/atari.yaml (torchrl_hybrid/configs.py):
+# each default is written here once. Where the paper is silent we use the A2C defaults of the
+# authors' base code (ikostrikov's pytorch-a2c-ppo-acktr); choices of ours are marked OURS.
+
+
 @dataclass
 class AtariEnvConfig:
-    game: str = "Pong"
-    num_envs: int = 16
-    num_threads: int = 2
-    noop_max: int = 30
+    game: str = "Pong"   # any ALE game; the paper's: Alien BeamRider Breakout MsPacman Pong Qbert Seaquest SpaceInvaders
+    num_envs: int = 16   # paper: 16 parallel environments; any number works (32, 64 on a GPU machine)
+    num_threads: int = 2  # ALE worker threads
+    noop_max: int = 30   # standard: up to 30 no-ops at episode start
     max_episode_frames: int = 108_000
 
 
 @dataclass
 class AtariCollectorConfig:
-    backend: str = "atari"  # atari (AtariCollector) | torchrl (TorchRL's generic Collector, the reference path)
-    # | multi_sync (TorchRL's MultiSyncCollector, `workers` processes) | ray (RayCollector, `workers` Ray actors)
-    workers: int = 2        # multi_sync / ray: env.num_envs is split evenly between them
-    address: str | None = None  # ray: the cluster to join; None starts a local one
-    env_groups: int = 1     # atari backend: groups of games stepped as a pipeline (1 = one vector env)
-    keep_features: bool = True  # atari backend: the learner reuses the encoder pass made during collection
+    # atari: AtariCollector (torchrl_hybrid/collectors/atari.py), the same batches as TorchRL's generic
+    #        Collector (tested equal) without its per-step TensorDict plumbing;
+    # torchrl: TorchRL's Collector over AtariEnv (the reference path);
+    # multi_sync: TorchRL's MultiSyncCollector, the games split between `workers` processes;
+    # ray: TorchRL's RayCollector, `workers` Ray actors (pip install -e '.[ray]'); both push the
+    #      learner's weights to the workers after every batch (synchronous A2C)
+    backend: str = "atari"
+    workers: int = 2            # multi_sync / ray: must divide env.num_envs
+    address: str | None = None  # ray: the cluster to join (e.g. auto); None starts a local one
+    # atari backend: split the games into this many ale-py vector envs stepped as a pipeline, so that
+    # the policy runs on one group's frames while another group's games step. Still synchronous A2C
+    # (every action from the current policy on the current frames); pays off where the policy runs
+    # on a GPU; on a 2-core CPU machine 1 is faster (benchmarks/atari_throughput.py --all).
+    env_groups: int = 1
+    # atari backend: the encoder pass made during collection (with autograd on) is handed to the
+    # learner, which then does not encode the batch's observations again (same weights, same
+    # frames: equal loss and gradients, tested)
+    keep_features: bool = True
 
 
 @dataclass
 class AtariDemoConfig(DemoConfig):
-    curriculum: bool = True  # the paper's curriculum rho (false: uniform)
+    """demo.path: the folder written by recipes/atari_demos.py (needed by every variant but a2c).
+    The curriculum counts game frames."""
+
+    curriculum: bool = True  # paper: sample only the first K steps of each trajectory (false: uniform)
 
 
 @dataclass
 class AtariLossConfig(LossConfig):
-    """:class:`~torchrl_hybrid.trainers.run.LossConfig` with the paper's Atari settings."""
+    """:class:`~torchrl_hybrid.trainers.run.LossConfig` with the Atari settings."""
 
-    n_steps: int = 5
-    critic_coeff: float = 0.5
-    entropy_coeff: float = 0.01
-    idm_action_coeff: float = 1.0
-    idm_embedding_coeff: float = 0.0  # see recipes/config/atari.yaml
-    bc_coeff: float = 1.0
-    bc_start_frames: int = 100_000
+    n_steps: int = 5               # A2C rollout length (base code default)
+    critic_coeff: float = 0.5      # base code default
+    entropy_coeff: float = 0.01    # base code default
+    idm_action_coeff: float = 1.0  # OURS
+    # OURS: 0 on Atari. With the L1 embedding terms of the authors' Taxi code (0.1) the dual model never
+    # leaves chance level on Atari: the L1 terms shrink h_a and h_ds towards their trivial minimum (0)
+    # faster than the weak early action signal grows them (benchmarks/atari_idm_learning.py: Breakout,
+    # 128k frames, loss stays at ln 4 with 0.1, reaches 0.8 / 57 % accuracy by 64k frames with 0).
+    idm_embedding_coeff: float = 0.0
+    bc_coeff: float = 1.0          # OURS
+    bc_start_frames: int = 100_000  # paper: inferred actions used only after 100,000 (game) frames
 
 
 @dataclass
 class AtariOptimConfig(OptimConfig):
-    lr: float = 7e-4
+    lr: float = 7e-4  # RMSprop, base code default
 
 
 @dataclass
 class AtariLoggerConfig(LoggerConfig):
-    log_every_frames: int = 40_000
+    log_every_frames: int = 40_000  # game frames between learning-curve rows
     accuracy_pairs: int = 512  # demo pairs of the inverse model's accuracy column (idm_accuracy_expert)
-    eval_episodes: int = 0  # episodes played by the final policy (sampling); stored in summary.json and model.pt
+    eval_episodes: int = 0  # whole episodes the final policy plays (sampling); stored in summary.json and model.pt
 
 
 @dataclass
 class AtariConfig:
-    variant: str = "hybrid_dual"
+    """Every setting of an Atari run, with its default; the Hydra schema of
+    ``recipes/config/atari.yaml``."""
+
+    variant: str = "hybrid_dual"   # hybrid_dual | hybrid_mlp | bc_dual | a2c
     seed: int = 0
-    total_frames: int = 2_000_000
-    rank: int = 8
-    d_state: int = 128
-    d: int = 128
-    mlp_layers: int = 2  # hybrid_mlp: hidden layers of the MLP inverse model
-    out_dir: str = "outputs/atari"
-    threads: int = 2  # torch threads, set by the recipes (utils/process.py), not by the library
+    total_frames: int = 2_000_000  # game frames summed over the envs (4 per agent step), as the paper counts
+    rank: int = 8                  # paper: rank 8 for Atari
+    d_state: int = 128             # paper: 512 -> 128 linear
+    d: int = 128                   # paper: M_r, N_r are 128 x 128
+    mlp_layers: int = 2            # hybrid_mlp: hidden layers of the MLP inverse model
+    out_dir: str = "outputs/atari"  # the recipes default to a fresh timestamped folder
+    threads: int = 2  # torch CPU threads, set by the recipes (utils/process.py), not by the library
+    # orthogonal = the A2C init of the authors' base code and of SB3 (gain sqrt 2, policy head 0.01);
+    # default = PyTorch's layer defaults
     init: str = "orthogonal"
+    # continue from out_dir/checkpoint (written every total_frames/10 game frames and at the end; needs
+    # logger.checkpoint=true): the envs start new episodes, metrics.csv goes on from the checkpoint.
+    # Raise total_frames to train a finished run longer.
     resume: bool = False
+    # replace the run in out_dir (summary, model, curve, checkpoint); without resume or overwrite, a
+    # folder that holds a run is refused, and so is a second run on a folder in use
     overwrite: bool = False
+    # where the networks, the learner and the expert demos live: auto (CUDA when available) | cpu | cuda |
+    # cuda:N. The games always run on the CPU (ale-py); their frames reach the GPU once per step, as uint8.
+    # A checkpoint written on one device resumes or loads on another.
     device: str = "auto"
     env: AtariEnvConfig = field(default_factory=AtariEnvConfig)
     collector: AtariCollectorConfig = field(default_factory=AtariCollectorConfig)

@@ -57,22 +57,28 @@ CLIPS = ("global", "per_group")
 
 @dataclass
 class LossConfig:
-    """The loss settings of every env; the defaults are the authors' Taxi code, Atari's
-    config overrides those the paper sets otherwise (``AtariLossConfig``)."""
+    """The loss settings of every env; the defaults are the paper's Taxi agent (where the paper
+    is silent, the authors' Taxi code). Atari's config overrides those the paper sets otherwise
+    (``AtariLossConfig``)."""
 
-    n_steps: int = 2
-    gamma: float = 0.99
-    critic_coeff: float = 0.2
-    entropy_coeff: float = 0.5
-    idm_action_coeff: float = 2.0
-    idm_embedding_coeff: float = 0.1
-    idm_forward_coeff: float = 0.0    # the forward head P_f over next states (discrete states only)
-    bc_coeff: float = 2.0
-    bc_start_frames: int = 0
-    bc_labels: str = "argmax"         # argmax (the paper) | soft (cross-entropy to P_i)
-    bc_confidence: float = 0.0         # clone only pairs with max P_i >= this (0: all)
-    bc_entropy_floor: float = 0.0      # penalise policy entropy below this on expert states (0: off)
-    bc_ready_accuracy: float = 0.0     # >0: BC starts once the inverse model's held-out accuracy reaches this
+    n_steps: int = 2                  # paper: 2-step A2C on Taxi (rollout length; TD(1) return bootstrapped at its end)
+    gamma: float = 0.99               # authors' code
+    critic_coeff: float = 0.2         # authors' code: value loss weight (L2)
+    entropy_coeff: float = 0.5        # authors' code: entropy bonus weight (the BC variants keep it too)
+    idm_action_coeff: float = 2.0     # authors' code: weight of -log P_i(a|s,s')
+    idm_embedding_coeff: float = 0.1  # authors' code: weight of the L1 embedding terms (averaged over dims: OURS)
+    idm_forward_coeff: float = 0.0    # authors' code: 0 (the paper trains L_act); > 0 adds -log P_f(s'|s,a)
+                                      # (discrete states only)
+    bc_coeff: float = 2.0             # authors' README runs: weight of the BC term
+    bc_start_frames: int = 0          # switch the BC term on after this many frames (paper's Atari: 100,000)
+    # Label handling (options beyond the paper; the paper's agent is the default):
+    bc_labels: str = "argmax"         # argmax = clone argmax_a P_i (the paper) | soft = cross-entropy to P_i, so
+                                      # look-alike actions share probability instead of one being erased
+    bc_confidence: float = 0.0         # clone only expert pairs whose max_a P_i >= this (0: every pair)
+    bc_entropy_floor: float = 0.0      # add bc_coeff * relu(floor - H(pi)) on expert states (0: off)
+    # > 0: BC switches on once the inverse model's running accuracy on the agent's own transitions (each
+    # batch measured before it is trained on; no expert labels) reaches this, and not before bc_start_frames
+    bc_ready_accuracy: float = 0.0
 
     def validate(self) -> None:
         _need(self.n_steps >= 1, f"loss.n_steps must be >= 1, got {self.n_steps}")
@@ -94,11 +100,13 @@ class LossConfig:
 class OptimConfig:
     """RMSprop over the de-duplicated parameters (policy, inverse model), gradient clipping."""
 
-    lr: float = 1e-3
+    lr: float = 1e-3            # RMSprop, authors' code
     eps: float = 1e-5
     alpha: float = 0.99
-    max_grad_norm: float = 0.5
-    clip: str = "global"  # global: one norm over all parameters | per_group: policy and inverse model apart
+    max_grad_norm: float = 0.5  # gradient-norm clip, authors' code
+    # global = one clip over all parameters (TorchRL's default stepper);
+    # per_group = policy and inverse model clipped separately (OURS, optional)
+    clip: str = "global"
 
     def validate(self) -> None:
         _need(self.lr > 0, f"optim.lr must be > 0, got {self.lr}")
@@ -273,50 +281,54 @@ def build_run(cfg, family: EnvFamily) -> Run:
     variant = get_variant(cfg.variant)
     out = Path(cfg.out_dir)
     lock = prepare_out_dir(out, resume=cfg.resume, overwrite=cfg.overwrite)  # held while the run lives
-    torch.manual_seed(cfg.seed)
-    setup = family.setup(cfg, variant, device, torch.Generator().manual_seed(cfg.seed))
-    nets = family.networks(cfg, variant, setup)
-    n_states = setup.extra.get("n_states") if cfg.loss.idm_forward_coeff > 0 else None
-    inverse_model = make_inverse_model(variant.inverse_model, nets.inverse_encoder() if variant.inverse_model else None,
-                                       setup.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
-                                       mlp_layers=cfg.mlp_layers, n_states=n_states)
-    loss = make_hybrid_loss(variant, nets.actor, nets.critic, inverse_model, expert_action_key=EXPERT_ACTION_KEY,
-                            **cfg.loss.loss_kwargs(), **family.loss_extra).to(device)  # moves every network
-    optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
-    skip = family.frame_skip(setup)
-    policy = nets.collection_policy if nets.collection_policy is not None else nets.actor
-    collector = family.collector(cfg, setup, policy, device, -(-cfg.total_frames // skip))
-    logger = None
-    if cfg.logger.backend != "none":
-        logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"), experiment_name=family.experiment_name(cfg))
-    frames_per_batch = cfg.frames_per_batch * skip
-    trainer = make_trainer(
-        collector=collector, loss=loss, optimizer=optimizer, total_frames=cfg.total_frames,
-        clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
-        save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
-        save_trainer_interval=max(cfg.total_frames // family.checkpoints_per_run, frames_per_batch),
-        clip_per_group=cfg.optim.clip == "per_group", frame_skip=skip,
-    )
-    run = Run(cfg, family, variant, setup, trainer, collector, nets.actor, nets.critic, nets.encoder, inverse_model,
-              policy, loss, None, out, device, 0, lock)
-    family.register_hooks(run)
-    if family.uses_workers(cfg):  # the workers' policy copies get the learner's weights after every batch
-        UpdateWeights(collector, update_weights_interval=1).register(trainer)
-    if variant.bc is not None:
-        lc = cfg.loss
-        attach_demonstrations(trainer, loss, setup.demos, sampler=family.sampler(cfg, setup),
-                              batch_size=cfg.demo.batch_size, bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
-                              bc_ready_accuracy=lc.bc_ready_accuracy, include_expert_actions=variant.bc == "true",
-                              device=device)
-    run.metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, family.evaluator(run),
-                              pbar_keys=family.pbar_keys, return_key=family.return_key)
-    run.metrics.register(trainer)
-    family.register_late_hooks(run)
-    settings = dataclasses.asdict(cfg)
-    if cfg.resume:
-        run.resumed_from = resume_trainer(trainer, out, settings, family.resume_keys, family.resume_ignore,
-                                          defaults=dataclasses.asdict(type(cfg)()))
-    (out / "config.json").write_text(json.dumps(settings, indent=2))
+    try:
+        torch.manual_seed(cfg.seed)
+        setup = family.setup(cfg, variant, device, torch.Generator().manual_seed(cfg.seed))
+        nets = family.networks(cfg, variant, setup)
+        n_states = setup.extra.get("n_states") if cfg.loss.idm_forward_coeff > 0 else None
+        inverse_model = make_inverse_model(variant.inverse_model, nets.inverse_encoder() if variant.inverse_model else None,
+                                           setup.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
+                                           mlp_layers=cfg.mlp_layers, n_states=n_states)
+        loss = make_hybrid_loss(variant, nets.actor, nets.critic, inverse_model, expert_action_key=EXPERT_ACTION_KEY,
+                                **cfg.loss.loss_kwargs(), **family.loss_extra).to(device)  # moves every network
+        optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
+        skip = family.frame_skip(setup)
+        policy = nets.collection_policy if nets.collection_policy is not None else nets.actor
+        collector = family.collector(cfg, setup, policy, device, -(-cfg.total_frames // skip))
+        logger = None
+        if cfg.logger.backend != "none":
+            logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"), experiment_name=family.experiment_name(cfg))
+        frames_per_batch = cfg.frames_per_batch * skip
+        trainer = make_trainer(
+            collector=collector, loss=loss, optimizer=optimizer, total_frames=cfg.total_frames,
+            clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
+            save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
+            save_trainer_interval=max(cfg.total_frames // family.checkpoints_per_run, frames_per_batch),
+            clip_per_group=cfg.optim.clip == "per_group", frame_skip=skip,
+        )
+        run = Run(cfg, family, variant, setup, trainer, collector, nets.actor, nets.critic, nets.encoder, inverse_model,
+                  policy, loss, None, out, device, 0, lock)
+        family.register_hooks(run)
+        if family.uses_workers(cfg):  # the workers' policy copies get the learner's weights after every batch
+            UpdateWeights(collector, update_weights_interval=1).register(trainer)
+        if variant.bc is not None:
+            lc = cfg.loss
+            attach_demonstrations(trainer, loss, setup.demos, sampler=family.sampler(cfg, setup),
+                                  batch_size=cfg.demo.batch_size, bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
+                                  bc_ready_accuracy=lc.bc_ready_accuracy, include_expert_actions=variant.bc == "true",
+                                  device=device)
+        run.metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, family.evaluator(run),
+                                  pbar_keys=family.pbar_keys, return_key=family.return_key)
+        run.metrics.register(trainer)
+        family.register_late_hooks(run)
+        settings = dataclasses.asdict(cfg)
+        if cfg.resume:
+            run.resumed_from = resume_trainer(trainer, out, settings, family.resume_keys, family.resume_ignore,
+                                              defaults=dataclasses.asdict(type(cfg)()))
+        (out / "config.json").write_text(json.dumps(settings, indent=2))
+    except BaseException:
+        lock.close()  # a run that could not be built does not keep out_dir
+        raise
     return run
 
 

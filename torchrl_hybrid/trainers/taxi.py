@@ -68,43 +68,69 @@ DEMO_FORMS = ("per_state", "trajectories")
 ENGINES = ("torchrl", "batched")
 
 
+# The settings below are the Hydra schema of recipes/config/taxi.yaml (torchrl_hybrid/configs.py):
+# each default is written here once. Defaults follow the paper; where it is silent, the
+# authors' public Taxi code (../shared/REFERENCE.md); choices neither source makes are marked OURS.
+
+
 @dataclass
 class EnvConfig:
-    env_id: str = "Taxi-v4"
-    kwargs: dict = field(default_factory=dict)  # gym.make keyword arguments, e.g. map_name, is_slippery
-    num_envs: int = 16
+    env_id: str = "Taxi-v4"  # gymnasium 1.4 name of Taxi; any toy-text env with a deterministic P, or CartPole-like
+    # gym.make keyword arguments, added with a leading + on the command line, e.g. FrozenLake 8x8
+    # without slipping: env.env_id=FrozenLake-v1 +env.kwargs.map_name=8x8 +env.kwargs.is_slippery=false
+    kwargs: dict = field(default_factory=dict)
+    num_envs: int = 16  # paper: 16 parallel environments
+    # tabular = exact batched tensor copy of the env built from its transition table P (fast);
+    # gym = gymnasium through TorchRL's GymEnv in a SerialEnv (any env); vector = one gymnasium
+    # SyncVectorEnv behind TorchRL's GymWrapper; auto = tabular if the env has P, else vector
     backend: str = "auto"
-    max_episode_steps: int = 50
+    max_episode_steps: int = 50  # authors' code capped episodes at 50 steps (gymnasium's default for Taxi: 200)
 
 
 @dataclass
 class GymDemoConfig(DemoConfig):
-    form: str = "per_state"     # per_state: the expert's pair at every state | trajectories: recorded episodes
+    # per_state = one expert pair (s, s') for each state (authors' code); trajectories = pairs from
+    # num_trajectories expert episodes (the paper's general form). demo.path (a folder written by
+    # torchrl_hybrid.data.save_demos) overrides both
+    form: str = "per_state"
     num_trajectories: int = 100
-    save_path: str | None = None
-    eta: float = 0.0
-    epsilon: float = 0.0
+    save_path: str | None = None  # write the demos this run uses (after noise) to this folder
+    eta: float = 0.0              # fraction of states missing from the demos, in [0, 1)
+    epsilon: float = 0.0          # fraction of demo transitions made by a non-optimal action, in [0, 1)
+    # non_optimal = exactly floor(epsilon * pairs) pairs redrawn with a non-optimal action (this project's
+    # spec); authors = each pair redrawn w.p. epsilon with a uniformly random move, as the authors' Taxi code
     epsilon_mode: str = "non_optimal"
-    expert_gamma: float = 0.99  # discount of the built-in value-iteration expert (below 1: shortest way to the reward)
+    # discount of the built-in expert (value iteration on the env's P, ties to the lowest action); below 1
+    # it takes the shortest way to the reward (with 1, FrozenLake's expert walks into a wall forever)
+    expert_gamma: float = 0.99
     expert: str | None = None   # vector observations: model.pt of an earlier run on this env, played to record demos
+    # a Minari dataset id (e.g. cartpole/expert-v0) in the local Minari cache: its state sequences are the
+    # demos, its actions dropped on load (nothing is downloaded; torchrl_hybrid/data/minari.py)
+    minari: str | None = None
+    minari_path: str | None = None  # the local Minari cache (None: MINARI_DATASETS_PATH, else ~/.minari/datasets)
     deterministic: bool = True  # record the expert's greedy action (false: sample its policy)
-    rho: str = "visited"        # visited | uniform | curriculum
+    # rho, the distribution of expert pairs the BC term sees: visited = pairs at the states the agent
+    # just visited (authors' Taxi code); uniform = batch_size pairs uniformly; curriculum = the paper's
+    # Atari curriculum (curriculum_k0, curriculum_frames_per_step)
+    rho: str = "visited"
 
 
 @dataclass
 class GymLoggerConfig(LoggerConfig):
     eval_episodes: int = 100        # greedy episodes of every learning-curve row (eval_return)
-    final_eval_episodes: int = 300  # greedy episodes of the final evaluation (summary.json)
+    final_eval_episodes: int = 300  # greedy episodes of the final evaluation (summary.json's final_return)
 
 
 @dataclass
 class CollectorConfig:
-    """Where the agent's transitions are collected (torchrl_hybrid/trainers/taxi.py: make_collector)."""
+    """Where the agent's transitions are collected (:func:`make_collector`). env.num_envs is
+    split evenly between the workers; the learner's weights reach them after every batch
+    (TorchRL's UpdateWeights hook), so A2C stays synchronous."""
 
     kind: str = "single"         # single: TorchRL's Collector in this process | multi_sync: MultiSyncCollector,
-                                 # `workers` processes | ray: RayCollector, `workers` Ray actors
+                                 # `workers` processes | ray: RayCollector, `workers` Ray actors (pip install -e '.[ray]')
     workers: int = 2             # multi_sync / ray: env.num_envs is split evenly between them
-    address: str | None = None   # ray: the cluster to join; None starts a local one with `workers` CPUs
+    address: str | None = None   # ray: the cluster to join (e.g. auto); None starts a local one with `workers` CPUs
 
 
 COLLECTORS = ("single", "multi_sync", "ray")
@@ -112,7 +138,7 @@ COLLECTORS = ("single", "multi_sync", "ray")
 
 @dataclass
 class EncoderConfig:
-    """Vector observations only: the MLP encoder of the actor, critic and inverse model."""
+    """Vector observations only: the MLP encoder (tanh) of the actor, critic and inverse model."""
 
     hidden: int = 64
     num_layers: int = 2
@@ -120,23 +146,36 @@ class EncoderConfig:
 
 @dataclass
 class TaxiConfig:
-    """Every knob of a run of the gymnasium pipeline (Taxi by default); ``recipes/config/taxi.yaml``
-    documents each one."""
+    """Every setting of a run of the gymnasium pipeline (Taxi by default), with its default;
+    the Hydra schema of ``recipes/config/taxi.yaml``. The loss, optim, logger and demo
+    settings every env shares are in :mod:`torchrl_hybrid.trainers.run`."""
 
-    variant: str = "hybrid_dual"
+    variant: str = "hybrid_dual"  # hybrid_dual (the paper's agent) | hybrid_mlp | bc_dual | bc_mlp | il | a2c
     seed: int = 0
-    total_frames: int = 80_000
-    rank: int = 2
-    d_state: int = 128
-    d: int = 128
-    mlp_layers: int = 2
+    total_frames: int = 80_000    # environment frames (summed over the parallel envs); the paper's curves: 80,000
+    rank: int = 2                 # rank R of the dual tensor model (paper: 2 for Taxi)
+    d_state: int = 128            # d_s, size of the state embedding h_s (paper: 128)
+    d: int = 128                  # d, size of h_a and h_ds (paper: 128); also the MLP baseline's hidden width
+    mlp_layers: int = 2           # hidden layers of the MLP inverse model (paper: 2)
+    # authors' code: actor and critic start with a trainable S x S embedding set to the identity, then a
+    # linear head; false = the paper's text, a single linear map of the one-hot state
     identity_embedding: bool = True
+    # where metrics.csv, summary.json, learning_curve.png, model.pt and checkpoint/ go; a folder that
+    # holds a run is refused unless resume or overwrite (the recipes default to a fresh timestamped one)
     out_dir: str = "outputs/taxi"
-    threads: int = 1
+    threads: int = 1  # torch CPU threads, set by the recipes (utils/process.py), not by the library; OURS: 1 is
+                      # fastest for these tiny networks (0 = torch's default)
+    # torchrl = TorchRL collector + Trainer with hooks (any env, every option, checkpoints);
+    # batched = the sweep's fast path (trainers/batched.py): same algorithm, tabular envs,
+    # rho=visited|uniform, no forward term, writes metrics/summary/plot but no checkpoint
     engine: str = "torchrl"
+    # where the networks, the learner and the demos live: auto (CUDA when available) | cpu | cuda;
+    # the envs stay on the CPU (engine=torchrl only; the batched engine runs on the CPU)
     device: str = "auto"
+    # continue the run in out_dir from its checkpoint/ (engine=torchrl; the settings must agree with
+    # its config.json; raise total_frames to train a finished run longer)
     resume: bool = False
-    overwrite: bool = False
+    overwrite: bool = False  # replace the run in out_dir (summary, model, curve, checkpoint); nothing else is touched
     env: EnvConfig = field(default_factory=EnvConfig)
     demo: GymDemoConfig = field(default_factory=GymDemoConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -194,6 +233,28 @@ def config_from_dict(d: dict[str, Any]) -> TaxiConfig:
     return dataclass_from_dict(TaxiConfig, d)
 
 
+def given_demos(cfg: TaxiConfig, obs_shape, obs_dtype):
+    """The demos a run is given rather than records: ``demo.path`` (a folder written by
+    ``save_demos``) or ``demo.minari`` (a local Minari dataset, actions dropped);
+    ``None`` when neither is set. Demos recorded on another env are refused."""
+    if cfg.demo.path and cfg.demo.minari:
+        raise ValueError(f"demo.path={cfg.demo.path} and demo.minari={cfg.demo.minari}: choose one demo source")
+    if cfg.demo.path:
+        demos, meta = load_demos(cfg.demo.path, obs_shape=obs_shape, obs_dtype=obs_dtype)
+        source = f"demo.path={cfg.demo.path}"
+    elif cfg.demo.minari:
+        from torchrl_hybrid.data.minari import load_minari_demos
+
+        demos, meta = load_minari_demos(cfg.demo.minari, datasets_path=cfg.demo.minari_path, obs_shape=obs_shape,
+                                        obs_dtype=obs_dtype)
+        source = f"demo.minari={cfg.demo.minari}"
+    else:
+        return None
+    if meta.get("env_id") not in (None, cfg.env.env_id):
+        raise ValueError(f"{source}: demos are for {meta.get('env_id')}, this run plays {cfg.env.env_id}")
+    return demos
+
+
 def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Generator):
     """The demo pairs of a run: the optimal expert's (or a file's), then noise."""
     policy, optimal = optimal_policy(model, cfg.demo.expert_gamma)
@@ -204,17 +265,18 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
                          f"{int((~ends).sum())} of {len(ends)} start states of {cfg.env.env_id}; raise "
                          "env.max_episode_steps, or use demo.expert_gamma below 1 (0.99) so that it takes "
                          "the shortest way to the goal")
-    if cfg.demo.path:
-        demos, _ = load_demos(cfg.demo.path, obs_shape=(), obs_dtype=torch.long)
+    demos = given_demos(cfg, obs_shape=(), obs_dtype=torch.long)
+    source = cfg.demo.path or cfg.demo.minari
+    if demos is not None:
         s = torch.cat([demos["observation"], demos["next", "observation"]])
         if s.min() < 0 or s.max() >= model.n_states:
-            raise ValueError(f"{cfg.demo.path}: states outside [0, {model.n_states}); demos are for another env")
+            raise ValueError(f"{source}: states outside [0, {model.n_states}); demos are for another env")
         # every pair must be a transition of the env under some action (the table says which)
         obs, nxt = demos["observation"].reshape(-1), demos["next", "observation"].reshape(-1)
         possible = ((model.next_state[obs] == nxt.view(-1, 1, 1)) & (model.prob[obs] > 0)).flatten(1).any(-1)
         if not bool(possible.all()):
             i = int((~possible).nonzero()[0])
-            raise ValueError(f"{cfg.demo.path}: {int((~possible).sum())} of {possible.numel()} pairs are not transitions "
+            raise ValueError(f"{source}: {int((~possible).sum())} of {possible.numel()} pairs are not transitions "
                              f"of {cfg.env.env_id} under any action (first: pair {i}, {int(obs[i])} -> {int(nxt[i])}); "
                              "demos for another env, or shuffled next states")
     elif cfg.demo.form == "per_state":
@@ -264,22 +326,19 @@ def _check_vector_config(cfg: TaxiConfig, needs_demos: bool = True) -> None:
         raise ValueError("loss.idm_forward_coeff > 0 (the forward head P_f over next states) needs discrete states")
     if cfg.engine == "batched":
         raise ValueError("engine=batched runs toy-text envs only; use engine=torchrl for vector observations")
-    if needs_demos and not cfg.demo.expert and not cfg.demo.path:
+    if needs_demos and not cfg.demo.expert and not cfg.demo.path and not cfg.demo.minari:
         raise ValueError(f"{env} has no table P, so there is no built-in expert: train one with this pipeline "
                          f"(variant=a2c out_dir=<dir>) and pass demo.expert=<dir>/model.pt, or pass recorded demos "
-                         "with demo.path=<folder>")
+                         "with demo.path=<folder> or a local Minari dataset with demo.minari=<dataset id>")
 
 
 def make_gym_demos(cfg: TaxiConfig, expert_actor, size: int):
     """State-only demos of a vector-observation env (observations of ``size``):
-    ``demo.path`` if given, else ``demo.num_trajectories`` whole episodes of
+    ``demo.path`` or ``demo.minari`` if given, else ``demo.num_trajectories`` whole episodes of
     ``expert_actor`` (greedy unless ``demo.deterministic=false``), the true actions kept
     for diagnostics only."""
-    if cfg.demo.path:
-        demos, meta = load_demos(cfg.demo.path, obs_shape=(size,), obs_dtype=torch.float32)
-        if meta.get("env_id", cfg.env.env_id) != cfg.env.env_id:
-            raise ValueError(f"demo.path={cfg.demo.path}: demos are for {meta.get('env_id')}, this run plays "
-                             f"{cfg.env.env_id}")
+    demos = given_demos(cfg, obs_shape=(size,), obs_dtype=torch.float32)
+    if demos is not None:
         return demos
     demos, returns = record_episodes(cfg.env.env_id, expert_actor, cfg.demo.num_trajectories,
                                      cfg.env.max_episode_steps, seed=cfg.seed + 30_000, env_kwargs=cfg.env.kwargs,

@@ -1,0 +1,112 @@
+"""The one run assembly (torchrl_hybrid/trainers/run.py): a new env family plugs in,
+resuming across added settings, and library calls that leave process-wide settings alone."""
+import json
+
+import pytest
+import torch
+
+from torchrl_hybrid.trainers.run import EnvFamily, Run, build_run, train_run
+from torchrl_hybrid.trainers.taxi import GymFamily, TaxiConfig, build_taxi, config_from_dict, train_taxi
+from torchrl_hybrid.utils.process import configure_worker
+
+
+def tiny(out, **top) -> TaxiConfig:
+    d = {"total_frames": 640, "out_dir": str(out), "threads": 1,
+         "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": False}}
+    d.update(top)
+    return config_from_dict(d)
+
+
+def test_a_new_env_family_plugs_in_by_overriding_one_step(tmp_path):
+    """A user's family changes one step (here: its networks, counted) and gets the rest
+    (losses, trainer, demos, metrics, summary, model.pt) from the assembly."""
+    built = []
+
+    class CountingFamily(GymFamily):
+        def networks(self, cfg, variant, setup):
+            nets = super().networks(cfg, variant, setup)
+            built.append((setup.n_actions, setup.extra["n_states"]))
+            return nets
+
+    s = train_run(tiny(tmp_path / "run"), CountingFamily())
+    assert built == [(6, 500)]
+    assert s["frames"] == 640 and s["optimal_return"] is not None
+    for f in ("metrics.csv", "summary.json", "model.pt", "learning_curve.png", "config.json"):
+        assert (tmp_path / "run" / f).exists(), f
+    # the base class says what a family must provide
+    with pytest.raises(NotImplementedError):
+        build_run(tiny(tmp_path / "bare"), EnvFamily())
+
+
+def test_build_taxi_gives_the_run_the_trainer_trains(tmp_path):
+    run = build_taxi(tiny(tmp_path / "run"))
+    assert isinstance(run, Run) and run.inverse_model is not None and run.demos is not None
+    run.trainer.train()
+    assert run.trainer.collected_frames == 640
+    run.lock.close()
+
+
+def test_resume_takes_a_setting_added_since_the_checkpoint_as_its_default(tmp_path):
+    out = tmp_path / "run"
+    train_taxi(tiny(out))
+    saved = json.loads((out / "config.json").read_text())
+    # a checkpoint written before these settings existed
+    del saved["loss"]["bc_entropy_floor"], saved["optim"]["clip"], saved["mlp_layers"]
+    (out / "config.json").write_text(json.dumps(saved))
+    s = train_taxi(tiny(out, total_frames=1280, resume=True))
+    assert s["resumed_from_frames"] == 640 and s["frames"] == 1280
+    # a setting that differs from the saved one is still refused
+    saved = json.loads((out / "config.json").read_text())
+    saved["loss"]["bc_coeff"] = 3.0
+    (out / "config.json").write_text(json.dumps(saved))
+    with pytest.raises(ValueError, match=r"loss.bc_coeff: 3.0 -> 2.0"):
+        train_taxi(tiny(out, total_frames=1920, resume=True))
+
+
+def test_library_calls_leave_the_process_settings_alone(tmp_path):
+    before = torch.get_num_threads()
+    want = 2 if before != 2 else 3
+    torch.set_num_threads(want)
+    try:
+        train_taxi(tiny(tmp_path / "run", threads=1))  # threads is for the recipes, not a library call
+        assert torch.get_num_threads() == want
+        configure_worker(1)  # not a worker process of run_jobs: nothing changes
+        assert torch.get_num_threads() == want
+    finally:
+        torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize("name, cls", [("taxi", "TaxiConfig"), ("atari", "AtariConfig"), ("cartpole", "TaxiConfig"),
+                                       ("atari_expert", "AtariConfig")])
+def test_recipe_configs_are_the_dataclass_schemas(name, cls):
+    """Each default is written once: the recipes' YAML sets only out_dir (and a preset's
+    changes) over the ConfigStore schema, which Hydra checks names and types against."""
+    import dataclasses
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+    from hydra.errors import ConfigCompositionException
+    from omegaconf.errors import ValidationError
+
+    from torchrl_hybrid.configs import register_configs
+    from torchrl_hybrid.trainers import atari, taxi
+
+    register_configs()
+    schema = {"TaxiConfig": taxi.TaxiConfig, "AtariConfig": atari.AtariConfig}[cls]
+    folder = str(Path(__file__).resolve().parents[1] / "recipes" / "config")
+    with initialize_config_dir(config_dir=folder, version_base=None):
+        cfg = compose(config_name=name)
+        d = OmegaConf.to_container(cfg, resolve=False)
+        d.pop("hydra", None)
+        default = dataclasses.asdict(schema())
+        changed = {k for k in default if d[k] != default[k]}
+        preset = {"taxi": {"out_dir"}, "atari": {"out_dir"},
+                  "cartpole": {"out_dir", "total_frames", "d_state", "d", "env", "demo", "loss", "optim", "logger"},
+                  "atari_expert": {"out_dir", "variant", "total_frames", "logger"}}[name]
+        assert changed == preset
+        assert set(d) == set(default)
+        with pytest.raises((ConfigCompositionException, ValidationError)):
+            compose(config_name=name, overrides=["seed=abc"])
+        with pytest.raises(ConfigCompositionException):
+            compose(config_name=name, overrides=["loss.nope=1"])
