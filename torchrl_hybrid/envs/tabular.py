@@ -53,6 +53,18 @@ class TabularModel:
     def deterministic(self) -> bool:
         return self.next_state.shape[2] == 1
 
+    def step(self, s: torch.Tensor, a: torch.Tensor, generator: torch.Generator | None = None):
+        """One step of every (state, action) pair, any batch shape: ``(s', reward,
+        terminated)``, the successor drawn from ``prob`` with ``generator`` (one draw per
+        pair, in row-major order; none for a deterministic model). :class:`TabularEnv` and
+        the batched fast path (``trainers/batched.py``) both step with this."""
+        if self.deterministic:
+            k = torch.zeros_like(s)
+        else:
+            p = self.prob[s, a]
+            k = torch.multinomial(p.reshape(-1, p.shape[-1]), 1, generator=generator).view(s.shape)
+        return self.next_state[s, a, k], self.reward[s, a, k], self.terminated[s, a, k]
+
     @classmethod
     def from_gym(cls, env_id_or_env: str | gym.Env, **env_kwargs) -> "TabularModel":
         """Reads ``P`` and the start distribution of a gymnasium env
@@ -181,16 +193,7 @@ class TabularEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action").reshape(self.batch_size)
-        s = self._state
-        m = self.model
-        if m.deterministic:
-            k = torch.zeros_like(s)
-        else:
-            p = m.prob[s, action]
-            k = torch.multinomial(p.reshape(-1, p.shape[-1]), 1, generator=self._rng).view(s.shape)
-        s2 = m.next_state[s, action, k]
-        reward = m.reward[s, action, k]
-        terminated = m.terminated[s, action, k]
+        s2, reward, terminated = self.model.step(self._state, action, self._rng)
         self._elapsed = self._elapsed + 1
         if self.max_episode_steps is not None:
             truncated = (self._elapsed >= self.max_episode_steps) & ~terminated

@@ -6,6 +6,7 @@ from torchrl_hybrid.modules.inverse_dynamics import (
     DualInverseDynamics,
     InverseDynamicsModel,
     MLPInverseDynamics,
+    dual_product,
 )
 
 __all__ = [
@@ -17,6 +18,7 @@ __all__ = [
     "MLPEncoder",
     "MLPInverseDynamics",
     "OneHotEncoder",
+    "dual_product",
     "make_mlp_actor_critic",
     "make_policy",
     "make_tabular_actor_critic",

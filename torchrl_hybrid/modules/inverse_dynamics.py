@@ -19,7 +19,14 @@ from torch import nn
 
 from torchrl_hybrid.modules.encoders import OneHotEncoder
 
-__all__ = ["InverseDynamicsModel", "DualInverseDynamics", "MLPInverseDynamics"]
+__all__ = ["InverseDynamicsModel", "DualInverseDynamics", "MLPInverseDynamics", "dual_product"]
+
+
+def dual_product(hsM: torch.Tensor, hxN: torch.Tensor) -> torch.Tensor:
+    """The low-rank dual product from its projections: ``hsM[..., r, :] = h_s M_r`` and
+    ``hxN[..., r, :] = h_x N_r`` give F(s, x) = sum_r (h_s M_r) * (h_x N_r). Shared by
+    :class:`DualInverseDynamics` and the batched fast path (which projects K agents at once)."""
+    return (hsM * hxN).sum(-2)
 
 
 def _state_projection(encoder: nn.Module, d_state: int) -> nn.Linear:
@@ -129,7 +136,7 @@ class DualInverseDynamics(InverseDynamicsModel):
         """F(s, x) = sum_r (h_s M_r) * (h_x N_r), for h_x either h_ds or h_a."""
         hsM = torch.einsum("...i,rik->...rk", h_s, self.M)
         hxN = torch.einsum("...j,rjk->...rk", h_x, self.N)
-        return (hsM * hxN).sum(-2)
+        return dual_product(hsM, hxN)
 
     def embed(self, obs: torch.Tensor, next_obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``h_s`` and ``h_ds``. The encoder sees ``obs`` as given, so an encoder that

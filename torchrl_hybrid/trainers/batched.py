@@ -43,6 +43,7 @@ import torch.nn.functional as F
 
 from torchrl_hybrid.data.expert import EXPERT_ACTION_KEY
 from torchrl_hybrid.experts import expected_return
+from torchrl_hybrid.modules import dual_product
 from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.taxi import TaxiConfig, make_taxi_demos, tabular_model
 
@@ -216,10 +217,11 @@ class BatchedTabularAgents:
         return torch.bmm(h, self.p[name]).view(self.K, h.shape[1], self.cfg.rank, -1)
 
     def dual(self, h_s, h_x, hsM=None):
-        """F(s, x) = sum_r (h_s M_r) * (h_x N_r); pass ``hsM`` to reuse h_s M_r."""
+        """F(s, x) = sum_r (h_s M_r) * (h_x N_r) (:func:`~torchrl_hybrid.modules.dual_product`,
+        as DualInverseDynamics); pass ``hsM`` to reuse h_s M_r."""
         if hsM is None:
             hsM = self._project(h_s, "M")
-        return (hsM * self._project(h_x, "N")).sum(2)
+        return dual_product(hsM, self._project(h_x, "N"))
 
     def idm_terms(self, s, s2, a=None) -> dict[str, torch.Tensor]:
         h_s, h_s2 = self.rows("W_s", s), self.rows("W_s", s2)
@@ -387,13 +389,8 @@ def train_taxi_batched(
     def reset_states(n):
         return torch.multinomial(model.initial_dist, K * n, replacement=True, generator=gen).view(K, n)
 
-    def env_step(s, a):
-        if model.deterministic:
-            k = torch.zeros_like(s)
-        else:
-            p = model.prob[s, a]
-            k = torch.multinomial(p.reshape(-1, p.shape[-1]), 1, generator=gen).view(s.shape)
-        return model.next_state[s, a, k], model.reward[s, a, k], model.terminated[s, a, k]
+    def env_step(s, a):  # the same step as TabularEnv's
+        return model.step(s, a, gen)
 
     @torch.no_grad()
     def evaluate(n_episodes: int) -> torch.Tensor:
