@@ -441,3 +441,14 @@ def test_hybrid_runs_with_its_games_in_worker_processes(pong_demos, tmp_path, ki
     assert int(rows[-1]["frames"]) == 256 and "loss_bc" in rows[-1] and "loss_objective" in rows[-1]
     with pytest.raises(ValueError, match="must divide env.num_envs"):
         tiny(tmp_path / "bad", variant="a2c", collector={"backend": kind, "workers": 3}).validate()
+
+
+def test_compile_setting_compiles_the_shared_cnn(tmp_path):
+    from torchrl_hybrid.trainers.atari import build_atari
+
+    run = build_atari(tiny(tmp_path / "c", variant="a2c", compile="default"))
+    assert run.encoder._compiled is not None  # collection and learner share the compiled CNN
+    run.collector.shutdown()
+    run.lock.close()
+    with pytest.raises(ValueError, match=r"compile='fast': choose one of \('off', 'default'"):
+        tiny(tmp_path / "d", compile="fast").validate()

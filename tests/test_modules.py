@@ -1,3 +1,4 @@
+import copy
 import pytest
 import torch
 
@@ -82,3 +83,26 @@ def test_bad_arguments_are_refused():
         small_dual(rank=0)
     with pytest.raises(ValueError, match="num_layers"):
         MLPInverseDynamics(OneHotEncoder(7), 4, num_layers=0)
+
+
+def test_compiled_atari_cnn_gives_the_plain_numbers():
+    """encoder.compile_cnn() (AtariConfig.compile): the same features and gradients as the
+    plain modules, for the batch sizes of collection (16) and of the learner (80)."""
+    from torchrl_hybrid.modules import AtariEncoder
+
+    torch.manual_seed(0)
+    plain = AtariEncoder()
+    plain.reuse_features = False
+    compiled = copy.deepcopy(plain).compile_cnn("default")
+    for n in (16, 80):
+        frames = torch.randint(0, 256, (n, 4, 84, 84), dtype=torch.uint8)
+        a, b = plain(frames), compiled(frames)
+        torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-5)
+        a.square().sum().backward()
+        b.square().sum().backward()
+        for (name, p), q in zip(plain.named_parameters(), compiled.parameters()):
+            torch.testing.assert_close(q.grad, p.grad, rtol=1e-4, atol=1e-5, msg=name)
+            p.grad = q.grad = None
+    assert compiled.compile_cnn("off")._compiled is None
+    with pytest.raises(ValueError, match="compile='fast'"):
+        plain.compile_cnn("fast")

@@ -48,6 +48,33 @@ class AtariEncoder(nn.Module):
         self.channels_last = channels_last
         if channels_last:
             self.convs.to(memory_format=torch.channels_last)
+        self._compiled = None  # compile_cnn(): the compiled CNN (convs + fc), else the plain modules
+
+    COMPILE_MODES = ("off", "default", "reduce-overhead", "max-autotune")
+
+    def compile_cnn(self, mode: str = "default") -> "AtariEncoder":
+        """Runs the CNN (the convolutions and the 512-unit layer: all of an update's
+        FLOPs) through ``torch.compile`` with ``mode`` (``"reduce-overhead"`` adds CUDA
+        graphs on a GPU); ``"off"`` goes back to the plain modules. Same weights, same
+        parameters (checkpoints and optimisers see no difference); the feature reuse
+        around the CNN is unchanged. Measured on a 2-core CPU it is about as fast as the
+        plain path (``benchmarks/atari_compile.py``: 1.02x for the learner's forward +
+        backward, 1.08x for collection's forward), so the default is off; not measured
+        on a GPU yet."""
+        if mode not in self.COMPILE_MODES:
+            raise ValueError(f"compile={mode!r}: choose one of {self.COMPILE_MODES}")
+        # batch sizes vary (collection, learner, the rows feature reuse leaves): torch.compile
+        # makes the batch dimension dynamic after its first recompile
+        self._compiled = None if mode == "off" else torch.compile(self._cnn, mode=None if mode == "default" else mode)
+        return self
+
+    def _cnn(self, x: torch.Tensor) -> torch.Tensor:
+        return self.fc(self.convs(x))
+
+    def __getstate__(self):  # a compiled function does not pickle (worker collectors copy the policy)
+        state = self.__dict__.copy()
+        state["_compiled"] = None
+        return state
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         # The CNN dominates the cost of an update, and the losses of one update see the
@@ -133,7 +160,8 @@ class AtariEncoder(nn.Module):
                 x = x.contiguous(memory_format=torch.channels_last)
             except RuntimeError:  # inside torch.vmap (TorchRL's value estimators): keep the layout
                 pass
-        return self.fc(self.convs(x)).reshape(*lead, self.out_features)
+        cnn = self._compiled if self._compiled is not None else self._cnn
+        return cnn(x).reshape(*lead, self.out_features)
 
 
 def orthogonal_init_(module: nn.Module, gain: float) -> nn.Module:

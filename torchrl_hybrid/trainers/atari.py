@@ -140,6 +140,10 @@ class AtariConfig:
     # orthogonal = the A2C init of the authors' base code and of SB3 (gain sqrt 2, policy head 0.01);
     # default = PyTorch's layer defaults
     init: str = "orthogonal"
+    # torch.compile the CNN (collection and learner): off | default | reduce-overhead (CUDA graphs on a
+    # GPU) | max-autotune. Same numbers as off (tested); about as fast as off on a 2-core CPU
+    # (benchmarks/atari_compile.py), not measured on a GPU yet
+    compile: str = "off"
     # continue from out_dir/checkpoint (written every total_frames/10 game frames and at the end; needs
     # logger.checkpoint=true): the envs start new episodes, metrics.csv goes on from the checkpoint.
     # Raise total_frames to train a finished run longer.
@@ -170,6 +174,8 @@ class AtariConfig:
             raise ValueError(f"rank must be >= 1, got {self.rank}")
         if self.mlp_layers < 1:
             raise ValueError(f"mlp_layers must be >= 1, got {self.mlp_layers}")
+        if self.compile not in AtariEncoder.COMPILE_MODES:
+            raise ValueError(f"compile={self.compile!r}: choose one of {AtariEncoder.COMPILE_MODES}")
         self.loss.validate()
         self.optim.validate()
         if self.loss.idm_forward_coeff > 0:
@@ -292,6 +298,8 @@ class AtariFamily(EnvFamily):
         # only: no channels-last convolution weights there (same numbers, another memory layout)
         encoder = AtariEncoder(channels_last=False) if cfg.collector.backend == "ray" else None
         actor, critic, encoder, policy = make_atari_actor_critic(setup.n_actions, encoder=encoder, init=cfg.init)
+        if cfg.compile != "off":
+            encoder.compile_cnn(cfg.compile)
         return Networks(actor, critic, lambda: encoder, policy, encoder)  # one CNN for all
 
     def collector(self, cfg: AtariConfig, setup: Setup, policy, device, total_steps: int):
