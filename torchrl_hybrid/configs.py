@@ -28,14 +28,14 @@ def register_configs() -> None:
         return
     from hydra.core.config_store import ConfigStore
 
-    from torchrl_hybrid.trainers import atari, taxi
+    from torchrl_hybrid.trainers import atari, run, taxi
 
     cs = ConfigStore.instance()
     cs.store(name="taxi_schema", node=taxi.TaxiConfig)
     cs.store(name="atari_schema", node=atari.AtariConfig)
     for group, entries in {
-        "loss": {"taxi": taxi.LossConfig, "atari": atari.AtariLossConfig},
-        "optim": {"taxi": taxi.OptimConfig, "atari": atari.AtariOptimConfig},
+        "loss": {"taxi": run.LossConfig, "atari": atari.AtariLossConfig},
+        "optim": {"taxi": run.OptimConfig, "atari": atari.AtariOptimConfig},
         "logger": {"gym": taxi.GymLoggerConfig, "atari": atari.AtariLoggerConfig},
         "demo": {"gym": taxi.GymDemoConfig, "atari": atari.AtariDemoConfig},
         "env": {"gym": taxi.EnvConfig, "atari": atari.AtariEnvConfig},

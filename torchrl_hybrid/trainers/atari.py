@@ -26,19 +26,8 @@ from torchrl_hybrid.modules import AtariEncoder, make_atari_actor_critic
 from torchrl_hybrid.trainers.evaluation import evaluate_atari, inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import NextStateValueHook
 from torchrl_hybrid.trainers.hybrid import get_variant
-from torchrl_hybrid.trainers.run import (
-    DemoConfig,
-    EnvFamily,
-    LoggerConfig,
-    LossConfig,
-    Networks,
-    OptimConfig,
-    Run,
-    Setup,
-    build_run,
-    finite,
-    train_run,
-)
+from torchrl_hybrid.trainers.run import DemoConfig, LoggerConfig, LossConfig, OptimConfig  # what Atari's settings extend
+from torchrl_hybrid.trainers.run import EnvFamily, Networks, Run, RunConfig, Setup, build_run, finite, train_run
 from torchrl_hybrid.utils.config import dataclass_from_dict
 from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT
@@ -124,19 +113,17 @@ class AtariLoggerConfig(LoggerConfig):
 
 
 @dataclass
-class AtariConfig:
+class AtariConfig(RunConfig):
     """Every setting of an Atari run, with its default; the Hydra schema of
-    ``recipes/config/atari.yaml``."""
+    ``recipes/config/atari.yaml``. The settings every run has (variant, seed, sizes, out_dir,
+    device, resume, ...) are in :class:`~torchrl_hybrid.trainers.run.RunConfig`; variants here:
+    hybrid_dual | hybrid_mlp | bc_dual | a2c. The games always run on the CPU (ale-py); their
+    frames reach the GPU once per step, as uint8."""
 
-    variant: str = "hybrid_dual"   # hybrid_dual | hybrid_mlp | bc_dual | a2c
-    seed: int = 0
     total_frames: int = 2_000_000  # game frames summed over the envs (4 per agent step), as the paper counts
-    rank: int = 8                  # paper: rank 8 for Atari
-    d_state: int = 128             # paper: 512 -> 128 linear
-    d: int = 128                   # paper: M_r, N_r are 128 x 128
-    mlp_layers: int = 2            # hybrid_mlp: hidden layers of the MLP inverse model
-    out_dir: str = "outputs/atari"  # the recipes default to a fresh timestamped folder
-    threads: int = 2  # torch CPU threads, set by the recipes (utils/process.py), not by the library
+    rank: int = 8                  # paper: rank 8 for Atari (d_state: the paper's 512 -> 128 linear)
+    out_dir: str = "outputs/atari"
+    threads: int = 2
     # orthogonal = the A2C init of the authors' base code and of SB3 (gain sqrt 2, policy head 0.01);
     # default = PyTorch's layer defaults
     init: str = "orthogonal"
@@ -144,17 +131,6 @@ class AtariConfig:
     # GPU) | max-autotune. Same numbers as off (tested); about as fast as off on a 2-core CPU
     # (benchmarks/atari_compile.py), not measured on a GPU yet
     compile: str = "off"
-    # continue from out_dir/checkpoint (written every total_frames/10 game frames and at the end; needs
-    # logger.checkpoint=true): the envs start new episodes, metrics.csv goes on from the checkpoint.
-    # Raise total_frames to train a finished run longer.
-    resume: bool = False
-    # replace the run in out_dir (summary, model, curve, checkpoint); without resume or overwrite, a
-    # folder that holds a run is refused, and so is a second run on a folder in use
-    overwrite: bool = False
-    # where the networks, the learner and the expert demos live: auto (CUDA when available) | cpu | cuda |
-    # cuda:N. The games always run on the CPU (ale-py); their frames reach the GPU once per step, as uint8.
-    # A checkpoint written on one device resumes or loads on another.
-    device: str = "auto"
     env: AtariEnvConfig = field(default_factory=AtariEnvConfig)
     collector: AtariCollectorConfig = field(default_factory=AtariCollectorConfig)
     demo: AtariDemoConfig = field(default_factory=AtariDemoConfig)

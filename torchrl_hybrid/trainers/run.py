@@ -47,7 +47,7 @@ from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.files import prepare_out_dir
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
-__all__ = ["LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig", "LOGGERS", "BC_LABELS", "EnvFamily", "Setup", "Networks", "Run",
+__all__ = ["RunConfig", "LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig", "LOGGERS", "BC_LABELS", "EnvFamily", "Setup", "Networks", "Run",
            "build_run", "train_run", "finish_run", "make_inverse_model"]
 
 LOGGERS = ("csv", "tensorboard", "wandb", "none")
@@ -137,6 +137,36 @@ class LoggerConfig:
     def validate(self) -> None:
         _need(self.backend in LOGGERS, f"logger.backend must be one of {LOGGERS}, got {self.backend!r}")
         _need(self.log_every_frames >= 1, f"logger.log_every_frames must be >= 1, got {self.log_every_frames}")
+
+
+@dataclass
+class RunConfig:
+    """The settings every run has, whatever its env; each env family's config
+    (``TaxiConfig``, ``AtariConfig``) extends it and changes the defaults its env needs."""
+
+    variant: str = "hybrid_dual"  # the agent (trainers/hybrid.py: VARIANTS); hybrid_dual is the paper's
+    seed: int = 0
+    total_frames: int = 80_000    # frames to train (summed over the parallel envs)
+    rank: int = 2                 # rank R of the dual tensor model
+    d_state: int = 128            # d_s, size of the state embedding h_s (paper: 128)
+    d: int = 128                  # d, size of h_a and h_ds (paper: 128); also the MLP baseline's hidden width
+    mlp_layers: int = 2           # hidden layers of the MLP inverse model (paper: 2)
+    # where metrics.csv, summary.json, learning_curve.png, model.pt and checkpoint/ go; a folder that
+    # holds a run is refused unless resume or overwrite (the recipes default to a fresh timestamped one)
+    out_dir: str = "outputs/run"
+    threads: int = 1  # torch CPU threads, set by the recipes (utils/process.py), not by the library (0: torch's)
+    # where the networks, the learner and the demos live: auto (CUDA when available) | cpu | cuda | cuda:N;
+    # the envs stay on the CPU. A checkpoint written on one device resumes or loads on another.
+    device: str = "auto"
+    # continue the run in out_dir from its checkpoint/ (the settings must agree with its config.json;
+    # raise total_frames to train a finished run longer)
+    resume: bool = False
+    # replace the run in out_dir (summary, model, curve, checkpoint); nothing else there is touched
+    overwrite: bool = False
+    demo: DemoConfig = field(default_factory=DemoConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
 
 
 def _need(ok: bool, msg: str) -> None:

@@ -44,10 +44,9 @@ from torchrl_hybrid.trainers.run import (
     DemoConfig,
     EnvFamily,
     LoggerConfig,
-    LossConfig,
     Networks,
-    OptimConfig,
     Run,
+    RunConfig,
     Setup,
     build_run,
     train_run,
@@ -145,41 +144,23 @@ class EncoderConfig:
 
 
 @dataclass
-class TaxiConfig:
+class TaxiConfig(RunConfig):
     """Every setting of a run of the gymnasium pipeline (Taxi by default), with its default;
-    the Hydra schema of ``recipes/config/taxi.yaml``. The loss, optim, logger and demo
-    settings every env shares are in :mod:`torchrl_hybrid.trainers.run`."""
+    the Hydra schema of ``recipes/config/taxi.yaml``. The settings every run has
+    (variant, seed, sizes, out_dir, device, resume, ...) and the shared loss, optim, logger and
+    demo groups are in :mod:`torchrl_hybrid.trainers.run`; the defaults there are Taxi's
+    (80,000 frames as in the paper's curves, rank 2)."""
 
-    variant: str = "hybrid_dual"  # hybrid_dual (the paper's agent) | hybrid_mlp | bc_dual | bc_mlp | il | a2c
-    seed: int = 0
-    total_frames: int = 80_000    # environment frames (summed over the parallel envs); the paper's curves: 80,000
-    rank: int = 2                 # rank R of the dual tensor model (paper: 2 for Taxi)
-    d_state: int = 128            # d_s, size of the state embedding h_s (paper: 128)
-    d: int = 128                  # d, size of h_a and h_ds (paper: 128); also the MLP baseline's hidden width
-    mlp_layers: int = 2           # hidden layers of the MLP inverse model (paper: 2)
+    out_dir: str = "outputs/taxi"
     # authors' code: actor and critic start with a trainable S x S embedding set to the identity, then a
     # linear head; false = the paper's text, a single linear map of the one-hot state
     identity_embedding: bool = True
-    # where metrics.csv, summary.json, learning_curve.png, model.pt and checkpoint/ go; a folder that
-    # holds a run is refused unless resume or overwrite (the recipes default to a fresh timestamped one)
-    out_dir: str = "outputs/taxi"
-    threads: int = 1  # torch CPU threads, set by the recipes (utils/process.py), not by the library; OURS: 1 is
-                      # fastest for these tiny networks (0 = torch's default)
     # torchrl = TorchRL collector + Trainer with hooks (any env, every option, checkpoints);
-    # batched = the sweep's fast path (trainers/batched.py): same algorithm, tabular envs,
+    # batched = the sweep's fast path (trainers/batched.py): same algorithm, tabular envs, CPU only,
     # rho=visited|uniform, no forward term, writes metrics/summary/plot but no checkpoint
     engine: str = "torchrl"
-    # where the networks, the learner and the demos live: auto (CUDA when available) | cpu | cuda;
-    # the envs stay on the CPU (engine=torchrl only; the batched engine runs on the CPU)
-    device: str = "auto"
-    # continue the run in out_dir from its checkpoint/ (engine=torchrl; the settings must agree with
-    # its config.json; raise total_frames to train a finished run longer)
-    resume: bool = False
-    overwrite: bool = False  # replace the run in out_dir (summary, model, curve, checkpoint); nothing else is touched
     env: EnvConfig = field(default_factory=EnvConfig)
     demo: GymDemoConfig = field(default_factory=GymDemoConfig)
-    loss: LossConfig = field(default_factory=LossConfig)
-    optim: OptimConfig = field(default_factory=OptimConfig)
     logger: GymLoggerConfig = field(default_factory=GymLoggerConfig)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
