@@ -110,3 +110,24 @@ def test_recipe_configs_are_the_dataclass_schemas(name, cls):
             compose(config_name=name, overrides=["seed=abc"])
         with pytest.raises(ConfigCompositionException):
             compose(config_name=name, overrides=["loss.nope=1"])
+
+
+def test_optim_is_torchrls_rmsprop_config_and_every_argument_reaches_the_optimiser(tmp_path):
+    from torchrl.trainers.algorithms.configs.utils import RMSpropConfig
+
+    from torchrl_hybrid.trainers.run import OptimConfig
+
+    assert issubclass(OptimConfig, RMSpropConfig)
+    cfg = tiny(tmp_path / "run", optim={"lr": 3e-4, "momentum": 0.5, "centered": True})
+    run = build_taxi(cfg)
+    group = run.trainer.optimizer.param_groups[0]
+    assert isinstance(run.trainer.optimizer, torch.optim.RMSprop)
+    assert (group["lr"], group["momentum"], group["centered"], group["eps"]) == (3e-4, 0.5, True, 1e-5)
+    run.collector.shutdown()
+    run.lock.close()
+    with pytest.raises(ValueError, match="optim._target_='torch.optim.Adam'"):
+        tiny(tmp_path / "x", optim={"_target_": "torch.optim.Adam"}).validate()
+    from torchrl_hybrid.trainers.batched import train_taxi_batched
+
+    with pytest.raises(ValueError, match=r"plain RMSprop .*'momentum': 0.5.*engine=torchrl"):
+        train_taxi_batched([tiny(tmp_path / "y", optim={"momentum": 0.5})])

@@ -367,6 +367,11 @@ def train_taxi_batched(
         raise ValueError("the batched fast path supports demo.rho = visited | uniform; use train_taxi for the curriculum")
     if cfg.loss.idm_forward_coeff > 0:
         raise ValueError("the batched fast path has no forward head; use train_taxi for loss.idm_forward_coeff > 0")
+    o = cfg.optim
+    extras = {k: getattr(o, k) for k in ("weight_decay", "momentum", "centered", "maximize") if getattr(o, k)}
+    if extras:
+        raise ValueError(f"the batched fast path implements plain RMSprop (lr, alpha, eps); optim {extras} need "
+                         "engine=torchrl")
     variant = get_variant(cfg.variant)
     model = tabular_model(cfg.env.env_id, cfg.env.kwargs)
     S, A, K, E, T = model.n_states, model.n_actions, len(configs), cfg.env.num_envs, cfg.loss.n_steps

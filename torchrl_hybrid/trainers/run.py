@@ -29,6 +29,7 @@ from typing import Any, Callable
 
 import torch
 from torchrl.record.loggers import get_logger
+from torchrl.trainers.algorithms.configs.utils import RMSpropConfig
 from torchrl.trainers import UpdateWeights
 
 from torchrl_hybrid.data import EXPERT_ACTION_KEY
@@ -97,8 +98,10 @@ class LossConfig:
 
 
 @dataclass
-class OptimConfig:
-    """RMSprop over the de-duplicated parameters (policy, inverse model), gradient clipping."""
+class OptimConfig(RMSpropConfig):
+    """RMSprop over the de-duplicated parameters (policy, inverse model), gradient clipping.
+    TorchRL's own ``RMSpropConfig`` (torchrl.trainers.algorithms.configs), every
+    ``torch.optim.RMSprop`` argument, with the authors' defaults, plus the clipping settings."""
 
     lr: float = 1e-3            # RMSprop, authors' code
     eps: float = 1e-5
@@ -108,9 +111,18 @@ class OptimConfig:
     # per_group = policy and inverse model clipped separately (OURS, optional)
     clip: str = "global"
 
+    def make(self, params) -> torch.optim.Optimizer:
+        """The optimiser over ``params`` (e.g. :func:`~torchrl_hybrid.trainers.hybrid.param_groups`)."""
+        kwargs = {f.name: getattr(self, f.name) for f in dataclasses.fields(RMSpropConfig)
+                  if not f.name.startswith("_")}
+        return torch.optim.RMSprop(params, **kwargs)
+
     def validate(self) -> None:
         _need(self.lr > 0, f"optim.lr must be > 0, got {self.lr}")
         _need(self.clip in CLIPS, f"optim.clip must be one of {CLIPS}, got {self.clip!r}")
+        _need(self._target_ == "torch.optim.RMSprop",
+              f"optim._target_={self._target_!r}: the agent's optimiser is torch.optim.RMSprop (the paper's); "
+              "for another one build the run with build_run and replace run.trainer.optimizer")
 
 
 @dataclass
@@ -321,7 +333,7 @@ def build_run(cfg, family: EnvFamily) -> Run:
                                            mlp_layers=cfg.mlp_layers, n_states=n_states)
         loss = make_hybrid_loss(variant, nets.actor, nets.critic, inverse_model, expert_action_key=EXPERT_ACTION_KEY,
                                 **cfg.loss.loss_kwargs(), **family.loss_extra).to(device)  # moves every network
-        optimizer = torch.optim.RMSprop(param_groups(loss), lr=cfg.optim.lr, eps=cfg.optim.eps, alpha=cfg.optim.alpha)
+        optimizer = cfg.optim.make(param_groups(loss))
         skip = family.frame_skip(setup)
         policy = nets.collection_policy if nets.collection_policy is not None else nets.actor
         collector = family.collector(cfg, setup, policy, device, -(-cfg.total_frames // skip))
