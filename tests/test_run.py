@@ -131,3 +131,15 @@ def test_optim_is_torchrls_rmsprop_config_and_every_argument_reaches_the_optimis
 
     with pytest.raises(ValueError, match=r"plain RMSprop .*'momentum': 0.5.*engine=torchrl"):
         train_taxi_batched([tiny(tmp_path / "y", optim={"momentum": 0.5})])
+
+
+def test_configure_process_quiets_torchrl_even_before_torchrl_is_imported():
+    import subprocess
+    import sys
+
+    code = ("from torchrl_hybrid.utils.process import configure_process; configure_process(None); "
+            "import torch; from torchrl.data import LazyTensorStorage, ReplayBuffer; "
+            "ReplayBuffer(storage=LazyTensorStorage(4)).extend(torch.zeros(2, 1))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "Initialized LazyTensorStorage" not in r.stdout + r.stderr

@@ -16,6 +16,8 @@ def configure_process(threads: int | None = None) -> None:
     level (warnings and above) and tqdm's refresh: once a second on a terminal, every
     30 s when the output goes to a log file (an environment default; an explicit
     ``TQDM_MININTERVAL`` wins)."""
+    import torchrl  # noqa: F401  (importing torchrl sets its logger to INFO: import it first)
+
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     os.environ.setdefault("TQDM_MININTERVAL", "1" if sys.stderr.isatty() else "30")
     if threads:
