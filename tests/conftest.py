@@ -4,9 +4,6 @@ import pytest
 import torch
 
 logging.getLogger("torchrl").setLevel(logging.WARNING)
-# the test process is the owner of its settings (library calls no longer set them): one torch
-# thread, as the recipes' defaults for these tiny networks and as the library used to set it
-torch.set_num_threads(1)
 
 
 @pytest.fixture(autouse=True)
