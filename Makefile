@@ -4,6 +4,8 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 ARGS ?=
+# pytest-xdist processes for `make test` (one torch thread each)
+TEST_WORKERS ?= 2
 
 .PHONY: run test install clean
 
@@ -21,7 +23,7 @@ run: $(VENV)/.installed
 	$(PY) recipes/taxi.py $(ARGS)
 
 test: $(VENV)/.installed
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -n $(TEST_WORKERS) tests
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache

@@ -1,9 +1,15 @@
 import logging
+import os
 
 import pytest
 import torch
 
 logging.getLogger("torchrl").setLevel(logging.WARNING)
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # `make test` runs the suite in parallel worker processes (pytest-xdist), one per core:
+    # one torch thread each keeps them from oversubscribing the cores
+    torch.set_num_threads(1)
 
 
 @pytest.fixture(autouse=True)

@@ -1,4 +1,5 @@
 import copy
+import pickle
 import pytest
 import torch
 
@@ -103,6 +104,11 @@ def test_compiled_atari_cnn_gives_the_plain_numbers():
         for (name, p), q in zip(plain.named_parameters(), compiled.parameters()):
             torch.testing.assert_close(q.grad, p.grad, rtol=1e-4, atol=1e-5, msg=name)
             p.grad = q.grad = None
+    # a copy (deepcopy, a worker collector's pickled policy) is compiled again, in the same mode
+    for twin in (copy.deepcopy(compiled), pickle.loads(pickle.dumps(compiled))):
+        assert twin.compile_mode == "default" and twin._compiled is not None
+        assert twin._compiled is not compiled._compiled  # its own, compiled for its own weights
     assert compiled.compile_cnn("off")._compiled is None
+    assert copy.deepcopy(compiled)._compiled is None
     with pytest.raises(ValueError, match="compile='fast'"):
         plain.compile_cnn("fast")

@@ -38,6 +38,23 @@ def test_a_new_env_family_plugs_in_by_overriding_one_step(tmp_path):
         build_run(tiny(tmp_path / "bare"), EnvFamily())
 
 
+def test_a_run_that_fails_to_build_closes_its_envs_and_releases_out_dir(tmp_path):
+    opened = []
+
+    class FailingFamily(GymFamily):
+        def networks(self, cfg, variant, setup):
+            opened.extend([setup.env, setup.extra["eval_env"]])
+            raise RuntimeError("no networks today")
+
+        def collector(self, cfg, setup, policy, device, total_steps):
+            raise AssertionError("not reached")
+
+    with pytest.raises(RuntimeError, match="no networks today"):
+        build_run(tiny(tmp_path / "run"), FailingFamily())
+    assert len(opened) == 2 and all(env.is_closed for env in opened)
+    train_run(tiny(tmp_path / "run", total_frames=320), GymFamily())  # out_dir was released
+
+
 def test_build_taxi_gives_the_run_the_trainer_trains(tmp_path):
     run = build_taxi(tiny(tmp_path / "run"))
     assert isinstance(run, Run) and run.inverse_model is not None and run.demos is not None

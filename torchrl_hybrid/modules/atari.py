@@ -49,6 +49,7 @@ class AtariEncoder(nn.Module):
         if channels_last:
             self.convs.to(memory_format=torch.channels_last)
         self._compiled = None  # compile_cnn(): the compiled CNN (convs + fc), else the plain modules
+        self.compile_mode = "off"
 
     COMPILE_MODES = ("off", "default", "reduce-overhead", "max-autotune")
 
@@ -66,6 +67,7 @@ class AtariEncoder(nn.Module):
         # batch sizes vary (collection, learner, the rows feature reuse leaves): torch.compile
         # makes the batch dimension dynamic after its first recompile
         self._compiled = None if mode == "off" else torch.compile(self._cnn, mode=None if mode == "default" else mode)
+        self.compile_mode = mode
         return self
 
     def _cnn(self, x: torch.Tensor) -> torch.Tensor:
@@ -75,6 +77,12 @@ class AtariEncoder(nn.Module):
         state = self.__dict__.copy()
         state["_compiled"] = None
         return state
+
+    def __setstate__(self, state):  # a copy (deepcopy, a worker's policy) compiles again, in the same mode
+        super().__setstate__(state)
+        self.__dict__.setdefault("compile_mode", "off")
+        if self.compile_mode != "off":
+            self.compile_cnn(self.compile_mode)
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         # The CNN dominates the cost of an update, and the losses of one update see the

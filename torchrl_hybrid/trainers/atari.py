@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 import torch
@@ -242,7 +243,7 @@ class AtariFamily(EnvFamily):
     resume_ignore = _RESUME_IGNORE
     checkpoints_per_run = 10
     return_key = ("next", "episode_score")
-    loss_extra = {"value_estimator_kwargs": {"skip_existing": True}}  # values come from NextStateValueHook
+    loss_extra = MappingProxyType({"value_estimator_kwargs": {"skip_existing": True}})  # values come from NextStateValueHook
 
     def setup(self, cfg: AtariConfig, variant, device, generator) -> Setup:
         # the games run on the CPU; networks, learner and demos live on `device`
@@ -258,13 +259,21 @@ class AtariFamily(EnvFamily):
         else:
             env = _make_env(cfg)
             base = env.base_env
-        demos = None
+        setup = Setup(env, base.n_actions, None, {"base": base, "envs": envs})
         if variant.bc is not None:
-            demos, meta = load_demos(cfg.demo.path, obs_shape=tuple(base.observation_spec["observation"].shape[1:]),
-                                     obs_dtype=torch.uint8)
-            _check_demo_metadata(meta, cfg, base, cfg.demo.path)
-            _check_frame_stacks(demos, cfg.demo.path)
-        return Setup(env, base.n_actions, demos, {"base": base, "envs": envs})
+            try:
+                setup.demos, meta = load_demos(cfg.demo.path, obs_shape=tuple(base.observation_spec["observation"].shape[1:]),
+                                               obs_dtype=torch.uint8)
+                _check_demo_metadata(meta, cfg, base, cfg.demo.path)
+                _check_frame_stacks(setup.demos, cfg.demo.path)
+            except BaseException:
+                self.close_envs(setup)
+                raise
+        return setup
+
+    def close_envs(self, setup: Setup) -> None:
+        for env in setup.extra["envs"] or [setup.env]:
+            env.close()
 
     def frame_skip(self, setup: Setup) -> int:
         return setup.extra["base"].preprocessing["frameskip"]

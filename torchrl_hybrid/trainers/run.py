@@ -25,7 +25,8 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from types import MappingProxyType
+from typing import Any, Callable, Mapping
 
 import torch
 from torchrl.record.loggers import get_logger
@@ -221,7 +222,7 @@ class EnvFamily:
     checkpoints_per_run = 4
     return_key: Any = ("next", "episode_reward")
     pbar_keys: tuple[str, ...] = ("return_mean",)
-    loss_extra: dict = {}                 # more make_hybrid_loss arguments
+    loss_extra: Mapping[str, Any] = MappingProxyType({})  # more make_hybrid_loss arguments (read-only)
 
     def setup(self, cfg, variant: Variant, device: torch.device, generator: torch.Generator) -> Setup:
         raise NotImplementedError
@@ -268,8 +269,15 @@ class EnvFamily:
     def plot_kwargs(self, run: "Run", summary: dict) -> dict:
         return {}
 
-    def close(self, run: "Run") -> None:
-        """Closes what :meth:`setup` opened besides the collector's envs."""
+    def close_envs(self, setup: Setup) -> None:
+        """Closes the collector's envs when the run failed before its collector existed (a
+        built collector closes them on shutdown)."""
+        if hasattr(setup.env, "close"):
+            setup.env.close()
+
+    def close(self, setup: Setup) -> None:
+        """Closes what :meth:`setup` opened besides the collector's envs (also when the run
+        could not be built)."""
 
 
 @dataclass
@@ -323,6 +331,7 @@ def build_run(cfg, family: EnvFamily) -> Run:
     variant = get_variant(cfg.variant)
     out = Path(cfg.out_dir)
     lock = prepare_out_dir(out, resume=cfg.resume, overwrite=cfg.overwrite)  # held while the run lives
+    setup = collector = None
     try:
         torch.manual_seed(cfg.seed)
         setup = family.setup(cfg, variant, device, torch.Generator().manual_seed(cfg.seed))
@@ -368,8 +377,16 @@ def build_run(cfg, family: EnvFamily) -> Run:
             run.resumed_from = resume_trainer(trainer, out, settings, family.resume_keys, family.resume_ignore,
                                               defaults=dataclasses.asdict(type(cfg)()))
         (out / "config.json").write_text(json.dumps(settings, indent=2))
-    except BaseException:
-        lock.close()  # a run that could not be built does not keep out_dir
+    except BaseException:  # a run that could not be built closes what it opened and does not keep out_dir
+        try:
+            if collector is not None:
+                collector.shutdown()
+            elif setup is not None:
+                family.close_envs(setup)
+            if setup is not None:
+                family.close(setup)
+        finally:
+            lock.close()
         raise
     return run
 
@@ -405,7 +422,7 @@ def close_run(run: Run) -> None:
     releases ``out_dir``."""
     try:
         run.collector.shutdown()
-        run.family.close(run)
+        run.family.close(run.setup)
     finally:
         if run.lock is not None:
             run.lock.close()

@@ -457,8 +457,8 @@ class GymFamily(EnvFamily):
     def plot_kwargs(self, run: Run, summary: dict) -> dict:
         return {"optimal": summary["optimal_return"]}
 
-    def close(self, run: Run) -> None:
-        run.setup.extra["eval_env"].close()
+    def close(self, setup: Setup) -> None:
+        setup.extra["eval_env"].close()
 
 
 def build_taxi(cfg: TaxiConfig) -> Run:
