@@ -10,7 +10,9 @@ full 210 x 160 resolution, the max of the last two frames as the preprocessing t
 actions whose next screens are equal cannot be told apart from (s, s') by any model, so the
 inverse model's labels on such pairs carry no information about the action. Prints, per
 game, the share of states where no action changes the next screen, where all do, and the
-mean number of distinguishable action classes; writes ``--out`` (JSON) if given.
+mean number of distinguishable action classes; writes ``--out`` (JSON) and ``--plot``
+(a figure: the share of states by number of distinguishable actions) if given.
+``--from results/atari/action_effect.json`` redraws a saved result without playing.
 """
 from __future__ import annotations
 
@@ -63,22 +65,53 @@ def action_classes(game: str, states: int, seed: int = 0, frameskip: int = 4) ->
             "classes_histogram": {int(k): int((c == k).sum()) for k in range(1, n + 1)}}
 
 
+def plot(results: list[dict], path: str) -> None:
+    """Per game, the share of states in which k of its actions give distinct next screens."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(3.2 * len(results), 3.0), sharey=True, squeeze=False)
+    for ax, r in zip(axes[0], results):
+        ks = list(range(1, r["actions"] + 1))
+        share = [r["classes_histogram"].get(str(k), r["classes_histogram"].get(k, 0)) / r["states"] for k in ks]
+        ax.bar(ks, share, color=["tab:red"] + ["tab:blue"] * (len(ks) - 1))
+        ax.set_xticks(ks)
+        ax.set_title(f"{r['game']}: {r['mean_classes']:.2f} of {r['actions']} on average", fontsize=9)
+        ax.set_xlabel("distinguishable actions")
+    axes[0][0].set_ylabel("share of states")
+    fig.suptitle("Which actions (s, s') can tell apart (red: none changes the next screen)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--games", nargs="+", default=["Qbert", "Pong", "Breakout", "BeamRider"])
     p.add_argument("--states", type=int, default=1000)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=None)
+    p.add_argument("--out", default=None, help="write the results as JSON")
+    p.add_argument("--plot", default=None, help="write the figure (PNG)")
+    p.add_argument("--from", dest="source", default=None, help="read saved results (JSON) instead of playing")
     args = p.parse_args()
-    results = [action_classes(g, args.states, args.seed) for g in args.games]
+    if args.source:
+        with open(args.source) as f:
+            results = json.load(f)
+    else:
+        results = [action_classes(g, args.states, args.seed) for g in args.games]
     print(f"{'game':>10} {'actions':>7} {'no action visible':>18} {'all distinct':>13} {'mean classes':>13}")
     for r in results:
         print(f"{r['game']:>10} {r['actions']:7d} {r['no_action_visible']:18.1%} {r['all_distinct']:13.1%} "
               f"{r['mean_classes']:13.2f}")
-    print(f"({args.states} states per game under random play; classes = distinct next screens among the actions)")
+    print(f"({results[0]['states']} states per game under random play; classes = distinct next screens among the actions)")
     if args.out:
         with open(args.out, "w") as f:
             json.dump(results, f, indent=2)
+    if args.plot:
+        plot(results, args.plot)
+        print(f"figure: {args.plot}")
 
 
 if __name__ == "__main__":

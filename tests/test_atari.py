@@ -452,3 +452,25 @@ def test_compile_setting_compiles_the_shared_cnn(tmp_path):
     run.lock.close()
     with pytest.raises(ValueError, match=r"compile='fast': choose one of \('off', 'default'"):
         tiny(tmp_path / "d", compile="fast").validate()
+
+
+def test_action_effect_diagnostic_counts_the_actions_s_and_next_s_tell_apart(tmp_path):
+    """benchmarks/atari_action_effect.py, the mechanism behind the Atari results: on Qbert
+    almost no action changes the next screen (the joystick is read only when Qbert lands),
+    on Pong the paddle's three moves are told apart and the FIRE variants are not."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("action_effect", ROOT / "benchmarks" / "atari_action_effect.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    qbert, pong = mod.action_classes("Qbert", 50), mod.action_classes("Pong", 50)
+    for r in (qbert, pong):
+        assert r["actions"] == 6 and sum(r["classes_histogram"].values()) == 50
+    assert qbert["no_action_visible"] > 0.8 and qbert["mean_classes"] < 1.5
+    assert pong["no_action_visible"] < 0.2 and 2.0 < pong["mean_classes"] <= 3.0  # NOOP/FIRE, the two ups, the two downs
+    saved = tmp_path / "effect.json"
+    saved.write_text(json.dumps([qbert, pong]))  # as --out writes it (JSON turns the histogram's keys to strings)
+    mod.plot(json.loads(saved.read_text()), tmp_path / "effect.png")
+    assert (tmp_path / "effect.png").stat().st_size > 10_000
+    with pytest.raises(ValueError, match="no ROM"):
+        mod.action_classes("NotAGame", 1)
