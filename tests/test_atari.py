@@ -474,3 +474,35 @@ def test_action_effect_diagnostic_counts_the_actions_s_and_next_s_tell_apart(tmp
     assert (tmp_path / "effect.png").stat().st_size > 10_000
     with pytest.raises(ValueError, match="no ROM"):
         mod.action_classes("NotAGame", 1)
+
+
+def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_path):
+    """benchmarks/atari_inverse_labels.py rebuilds the actor and the inverse model (one shared
+    CNN) from model.pt and gives the labels the trained run's own modules give."""
+    import importlib.util
+
+    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.trainers.run import finish_run
+
+    spec = importlib.util.spec_from_file_location("inverse_labels", ROOT / "benchmarks" / "atari_inverse_labels.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    run = build_atari(tiny(tmp_path / "hybrid", variant="hybrid_dual", demo={"path": str(pong_demos / "demos")}))
+    run.trainer.train()
+    demos, _ = load_demos(pong_demos / "demos")
+    run.encoder.reuse_features = False
+    with torch.no_grad():
+        want = run.inverse_model.infer(demos["observation"], demos["next", "observation"])
+        greedy = run.actor(demos.select("observation").clone())["logits"].argmax(-1)
+    finish_run(run)
+    r = mod.inverse_labels(tmp_path / "hybrid" / "model.pt", pong_demos / "demos", batch=7)
+    n = len(demos)
+    assert r["pairs"] == n and r["actions"] == 6
+    assert r["share_labels"] == pytest.approx((torch.bincount(want, minlength=6).float() / n).tolist())
+    assert r["accuracy"] == pytest.approx(float((want == demos["expert_action"]).float().mean()))
+    assert r["labels_equal_agent_greedy"] == pytest.approx(float((want == greedy).float().mean()))
+    assert sum(r["share_true"]) == pytest.approx(1.0) and 1 / 6 <= r["mean_confidence"] <= 1
+    mod.plot(r, tmp_path / "labels.png")
+    assert (tmp_path / "labels.png").stat().st_size > 10_000
+    with pytest.raises(ValueError, match="a2c has none"):
+        mod.load_hybrid(pong_demos / "expert" / "model.pt")

@@ -1,0 +1,127 @@
+"""What labels the inverse model gives the expert's pairs, next to the expert's true actions
+and the agent's own preferred actions at the same states (the feedback loop behind the
+Atari results: where (s, s') shows no action, the labels follow the agent's habits).
+
+    python benchmarks/atari_inverse_labels.py --model results/atari/compare_5m/Qbert/hybrid_dual_s0/model.pt \
+        --demos demos/qbert --out results/atari/inverse_labels_qbert.json --plot results/atari/inverse_labels_qbert.png
+
+``--model``: a ``model.pt`` of a hybrid run (``recipes/atari_compare.py`` / ``train_atari``;
+it holds the actor and the inverse model). ``--demos``: the dataset that run learned from
+(``recipes/atari_demos.py``; it keeps the true actions for diagnostics only). Prints, per
+action, the share of the expert's true actions, of the inverse model's argmax labels and of
+the agent's greedy actions at the expert's states, the labels' accuracy, how often the label
+equals the agent's greedy action, and the mean confidence (max P_i).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from torchrl_hybrid.data import EXPERT_ACTION_KEY, load_demos
+from torchrl_hybrid.modules import make_atari_actor_critic
+from torchrl_hybrid.trainers.run import make_inverse_model
+
+
+def load_hybrid(path: str | Path):
+    """The actor and the inverse model of a hybrid run's ``model.pt`` (sharing one CNN, as trained)."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    if not isinstance(ckpt, dict) or ckpt.get("inverse_model") is None or "n_actions" not in ckpt:
+        raise ValueError(f"{path}: not the model.pt of an Atari run with an inverse model (a2c has none)")
+    cfg = ckpt["config"]
+    actor, _, encoder, _ = make_atari_actor_critic(ckpt["n_actions"])
+    kind = "mlp" if cfg["variant"].endswith("_mlp") else "dual"
+    idm = make_inverse_model(kind, encoder, ckpt["n_actions"], d_state=cfg["d_state"], d=cfg["d"], rank=cfg["rank"],
+                             mlp_layers=cfg.get("mlp_layers", 2))
+    actor.load_state_dict(ckpt["actor"])
+    idm.load_state_dict(ckpt["inverse_model"])
+    encoder.reuse_features = False  # every call here is a new batch
+    return actor.eval(), idm.eval(), ckpt
+
+
+@torch.no_grad()
+def inverse_labels(model: str | Path, demos: str | Path, batch: int = 256) -> dict:
+    actor, idm, ckpt = load_hybrid(model)
+    pairs, meta = load_demos(demos)
+    if meta.get("game") not in (None, ckpt["config"]["env"]["game"]):
+        raise ValueError(f"{demos} holds {meta['game']} demos, {model} plays {ckpt['config']['env']['game']}")
+    if EXPERT_ACTION_KEY not in pairs.keys():
+        raise ValueError(f"{demos} keeps no true actions ({EXPERT_ACTION_KEY}): the labels cannot be checked")
+    n_actions = ckpt["n_actions"]
+    labels, conf, greedy = [], [], []
+    for i in range(0, len(pairs), batch):
+        part = pairs[i:i + batch]
+        probs = idm.action_logits(part["observation"], part["next", "observation"]).softmax(-1)
+        c, lab = probs.max(-1)
+        labels.append(lab)
+        conf.append(c)
+        greedy.append(actor(part.select("observation").clone())["logits"].argmax(-1))
+    labels, conf, greedy = torch.cat(labels), torch.cat(conf), torch.cat(greedy)
+    true = pairs[EXPERT_ACTION_KEY]
+
+    def share(x):
+        return (torch.bincount(x, minlength=n_actions).float() / len(x)).tolist()
+
+    return {
+        "model": str(model), "demos": str(demos), "game": ckpt["config"]["env"]["game"],
+        "variant": ckpt["config"]["variant"], "pairs": len(pairs), "actions": n_actions,
+        "share_true": share(true), "share_labels": share(labels), "share_agent_greedy": share(greedy),
+        "accuracy": float((labels == true).float().mean()),
+        "labels_equal_agent_greedy": float((labels == greedy).float().mean()),
+        "agent_greedy_equals_expert": float((greedy == true).float().mean()),
+        "mean_confidence": float(conf.mean()),
+        "majority_true_share": max(share(true)),
+    }
+
+
+def plot(r: dict, path: str | Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    x, w = np.arange(r["actions"]), 0.27
+    fig, ax = plt.subplots(figsize=(6.4, 3.2))
+    ax.bar(x - w, r["share_true"], w, label="expert's true action")
+    ax.bar(x, r["share_labels"], w, label=f"inverse model's label (accuracy {r['accuracy']:.1%})")
+    ax.bar(x + w, r["share_agent_greedy"], w, label="agent's greedy action at s")
+    ax.set_xticks(x)
+    ax.set_xlabel("action")
+    ax.set_ylabel("share of the expert's pairs")
+    ax.set_title(f"{r['game']}, {r['variant']}: labels equal the agent's greedy action in "
+                 f"{r['labels_equal_agent_greedy']:.0%} of pairs", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--model", required=True)
+    p.add_argument("--demos", required=True)
+    p.add_argument("--out", default=None, help="write the result as JSON")
+    p.add_argument("--plot", default=None, help="write the figure (PNG)")
+    p.add_argument("--threads", type=int, default=1)
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    r = inverse_labels(args.model, args.demos)
+    print(f"{r['game']} {r['variant']}: {r['pairs']} expert pairs, {r['actions']} actions")
+    print(f"{'action':>6} {'true':>7} {'label':>7} {'agent':>7}")
+    for a in range(r["actions"]):
+        print(f"{a:6d} {r['share_true'][a]:7.1%} {r['share_labels'][a]:7.1%} {r['share_agent_greedy'][a]:7.1%}")
+    print(f"label accuracy {r['accuracy']:.1%} (the most frequent true action: {r['majority_true_share']:.1%}); "
+          f"label = agent's greedy action in {r['labels_equal_agent_greedy']:.1%}; agent's greedy action = expert's "
+          f"in {r['agent_greedy_equals_expert']:.1%}; mean confidence {r['mean_confidence']:.2f}")
+    if args.out:
+        Path(args.out).write_text(json.dumps(r, indent=2))
+    if args.plot:
+        plot(r, args.plot)
+        print(f"figure: {args.plot}")
+
+
+if __name__ == "__main__":
+    main()
