@@ -10,7 +10,8 @@ it holds the actor and the inverse model). ``--demos``: the dataset that run lea
 (``recipes/atari_demos.py``; it keeps the true actions for diagnostics only). Prints, per
 action, the share of the expert's true actions, of the inverse model's argmax labels and of
 the agent's greedy actions at the expert's states, the labels' accuracy, how often the label
-equals the agent's greedy action, and the mean confidence (max P_i).
+equals the agent's greedy action, the mean confidence (max P_i), and what a confidence gate
+(``loss.bc_confidence``) would keep at a few thresholds.
 """
 from __future__ import annotations
 
@@ -23,6 +24,9 @@ import torch
 from torchrl_hybrid.data import EXPERT_ACTION_KEY, load_demos
 from torchrl_hybrid.modules import make_atari_actor_critic
 from torchrl_hybrid.trainers.run import make_inverse_model
+
+
+CONFIDENCE_THRESHOLDS = (0.5, 0.6, 0.8, 0.9)
 
 
 def load_hybrid(path: str | Path):
@@ -73,6 +77,10 @@ def inverse_labels(model: str | Path, demos: str | Path, batch: int = 256) -> di
         "agent_greedy_equals_expert": float((greedy == true).float().mean()),
         "mean_confidence": float(conf.mean()),
         "majority_true_share": max(share(true)),
+        # what loss.bc_confidence=t would keep: the share of pairs with max P_i >= t and their labels' accuracy
+        "confidence_gate": {str(t): {"kept": float((conf >= t).float().mean()),
+                                     "accuracy": float((labels == true)[conf >= t].float().mean()) if (conf >= t).any()
+                                     else None} for t in CONFIDENCE_THRESHOLDS},
     }
 
 
@@ -116,6 +124,9 @@ def main() -> None:
     print(f"label accuracy {r['accuracy']:.1%} (the most frequent true action: {r['majority_true_share']:.1%}); "
           f"label = agent's greedy action in {r['labels_equal_agent_greedy']:.1%}; agent's greedy action = expert's "
           f"in {r['agent_greedy_equals_expert']:.1%}; mean confidence {r['mean_confidence']:.2f}")
+    for t, g in r["confidence_gate"].items():
+        acc = "-" if g["accuracy"] is None else f"{g['accuracy']:.1%}"
+        print(f"  loss.bc_confidence={t}: keeps {g['kept']:.1%} of the pairs, their labels' accuracy {acc}")
     if args.out:
         Path(args.out).write_text(json.dumps(r, indent=2))
     if args.plot:

@@ -502,6 +502,8 @@ def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_
     assert r["accuracy"] == pytest.approx(float((want == demos["expert_action"]).float().mean()))
     assert r["labels_equal_agent_greedy"] == pytest.approx(float((want == greedy).float().mean()))
     assert sum(r["share_true"]) == pytest.approx(1.0) and 1 / 6 <= r["mean_confidence"] <= 1
+    kept = [g["kept"] for g in r["confidence_gate"].values()]
+    assert kept == sorted(kept, reverse=True) and all(0 <= k <= 1 for k in kept)
     mod.plot(r, tmp_path / "labels.png")
     assert (tmp_path / "labels.png").stat().st_size > 10_000
     with pytest.raises(ValueError, match="a2c has none"):
