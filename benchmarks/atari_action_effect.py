@@ -97,8 +97,11 @@ def main() -> None:
     p.add_argument("--from", dest="source", default=None, help="read saved results (JSON) instead of playing")
     args = p.parse_args()
     if args.source:
-        with open(args.source) as f:
-            results = json.load(f)
+        try:
+            with open(args.source) as f:
+                results = json.load(f)
+        except (OSError, json.JSONDecodeError) as err:
+            raise SystemExit(f"error: --from {args.source}: {err}") from None
     else:
         results = [action_classes(g, args.states, args.seed) for g in args.games]
     print(f"{'game':>10} {'actions':>7} {'no action visible':>18} {'all distinct':>13} {'mean classes':>13}")

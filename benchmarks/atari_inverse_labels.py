@@ -23,6 +23,7 @@ import torch
 
 from torchrl_hybrid.data import EXPERT_ACTION_KEY, load_demos
 from torchrl_hybrid.modules import make_atari_actor_critic
+from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.run import make_inverse_model
 
 
@@ -31,13 +32,18 @@ CONFIDENCE_THRESHOLDS = (0.5, 0.6, 0.8, 0.9)
 
 def load_hybrid(path: str | Path):
     """The actor and the inverse model of a hybrid run's ``model.pt`` (sharing one CNN, as trained)."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"--model {path}: no such file (a model.pt written by train_atari)")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # truncated, another format
+        raise ValueError(f"--model {path} is not a model.pt written by train_atari ({type(err).__name__}: {err})") from None
     if not isinstance(ckpt, dict) or ckpt.get("inverse_model") is None or "n_actions" not in ckpt:
         raise ValueError(f"{path}: not the model.pt of an Atari run with an inverse model (a2c has none)")
     cfg = ckpt["config"]
     actor, _, encoder, _ = make_atari_actor_critic(ckpt["n_actions"])
-    kind = "mlp" if cfg["variant"].endswith("_mlp") else "dual"
-    idm = make_inverse_model(kind, encoder, ckpt["n_actions"], d_state=cfg["d_state"], d=cfg["d"], rank=cfg["rank"],
+    idm = make_inverse_model(get_variant(cfg["variant"]).inverse_model, encoder, ckpt["n_actions"], d_state=cfg["d_state"], d=cfg["d"], rank=cfg["rank"],
                              mlp_layers=cfg.get("mlp_layers", 2))
     actor.load_state_dict(ckpt["actor"])
     idm.load_state_dict(ckpt["inverse_model"])
@@ -116,7 +122,10 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    r = inverse_labels(args.model, args.demos)
+    try:
+        r = inverse_labels(args.model, args.demos)
+    except (ValueError, FileNotFoundError) as err:
+        raise SystemExit(f"error: {err}") from None
     print(f"{r['game']} {r['variant']}: {r['pairs']} expert pairs, {r['actions']} actions")
     print(f"{'action':>6} {'true':>7} {'label':>7} {'agent':>7}")
     for a in range(r["actions"]):
