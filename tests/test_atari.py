@@ -347,12 +347,24 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
         run_compare(CompareConfig(games=["Pong"], out_dir=str(tmp_path), demos={"Pong": str(tmp_path)}))
     with pytest.raises(ValueError, match="unknown Atari variant"):
         run_compare(CompareConfig(variants=["ppo"], out_dir=str(tmp_path)))
-    # another comparison drawn beside this one's runs, under labels, without running it again
-    beside = CompareConfig(games=["Pong"], variants=["a2c"], seeds=[0], total_frames=256, out_dir=str(tmp_path / "b"),
-                           workers=1, base=base, baselines={"first": str(tmp_path)}, label="again")
+    with pytest.raises(ValueError, match="cannot take a variant's name"):
+        run_compare(CompareConfig(variants=["a2c"], arms={"a2c": {"variant": "a2c"}}, out_dir=str(tmp_path)))
+    with pytest.raises(ValueError, match=r"Pong/typo: unknown config key 'loss.bc_lables'"):
+        run_compare(CompareConfig(games=["Pong"], variants=["typo"], out_dir=str(tmp_path / "t"), base=base,
+                                  arms={"typo": {"variant": "a2c", "loss": {"bc_lables": "soft"}}}))
+    assert not (tmp_path / "t").exists()  # refused before any run started
+    # another comparison drawn beside this one's runs, under labels, without running it again; its
+    # second arm is a named variant with overrides (a robust one of ROBUST_ARMS), run in <arm>_s<seed>
+    beside = CompareConfig(games=["Pong"], variants=["a2c", "hybrid_dual_soft"], seeds=[0], total_frames=256,
+                           out_dir=str(tmp_path / "b"), demos={"Pong": str(pong_demos / "demos")}, workers=1,
+                           base=base, baselines={"first": str(tmp_path)}, label="again")
     table = run_compare(beside)["Pong"]
-    assert [t["variant"] for t in table] == ["a2c (again)", "a2c (first)", "hybrid_dual (first)"]
-    assert table[1]["seeds"] == 1 and table[1]["frames_per_s"] == result["Pong"][0]["frames_per_s"]
+    assert [t["variant"] for t in table] == ["a2c (again)", "hybrid_dual_soft (again)", "a2c (first)",
+                                             "hybrid_dual (first)"]
+    assert table[2]["seeds"] == 1 and table[2]["frames_per_s"] == result["Pong"][0]["frames_per_s"]
+    run_cfg = json.loads((tmp_path / "b" / "Pong" / "hybrid_dual_soft_s0" / "config.json").read_text())
+    assert run_cfg["variant"] == "hybrid_dual" and run_cfg["loss"]["bc_labels"] == "soft"
+    assert json.loads((tmp_path / "b" / "Pong" / "a2c_s0" / "config.json").read_text())["loss"]["bc_labels"] == "argmax"
 
 
 def test_fused_collection_policy_equals_actor_and_critic():

@@ -25,7 +25,19 @@ from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci
 
-__all__ = ["CompareConfig", "run_compare", "analyse_compare", "load_runs"]
+__all__ = ["CompareConfig", "ROBUST_ARMS", "run_compare", "analyse_compare", "load_runs"]
+
+# Named arms: a variant plus AtariConfig overrides, listed in ``variants`` like a variant
+# and run in ``<out_dir>/<game>/<arm>_s<seed>``, so that the paper's agent, a robust
+# variant and A2C run side by side in one comparison. These are the robust label
+# handling options of issue 9 (ExpertBCLoss, torchrl_hybrid/objectives/bc.py); ``CompareConfig.arms`` adds
+# more or replaces these.
+ROBUST_ARMS: dict[str, dict] = {
+    "hybrid_dual_soft": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft"}},
+    "hybrid_dual_gate": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_confidence": 0.6}},
+    "hybrid_dual_floor": {"variant": "hybrid_dual", "loss": {"bc_entropy_floor": 1.0}},
+    "hybrid_dual_ready": {"variant": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
+}
 
 
 @dataclass
@@ -34,7 +46,8 @@ class CompareConfig:
     variant but ``a2c``); ``base`` holds :class:`AtariConfig` overrides for every run;
     ``baselines`` maps a label to another comparison's ``out_dir`` whose finished runs
     of the same games are drawn and tabulated beside these (as ``<variant> (<label>)``),
-    without being run again."""
+    without being run again. ``arms`` maps a name to ``{"variant": <variant>, **overrides}``
+    beside :data:`ROBUST_ARMS`; a name in ``variants`` that is not a variant is an arm."""
 
     games: Sequence[str] = ("Pong", "Breakout")
     variants: Sequence[str] = ("a2c", "hybrid_dual")
@@ -49,14 +62,34 @@ class CompareConfig:
     launcher: str = "local"     # local (worker processes) | ray (Ray tasks; see torchrl_hybrid/utils/launch.py)
     address: str | None = None  # ray: the cluster to join; None starts a local one
     max_retries: int = 2        # ray: how often a run whose worker died is started again
+    arms: dict = field(default_factory=dict)  # more named arms, beside (or replacing) ROBUST_ARMS
+
+    @property
+    def all_arms(self) -> dict[str, dict]:
+        return {**ROBUST_ARMS, **self.arms}
+
+    def arm(self, name: str) -> tuple[str, dict]:
+        """(the variant, the AtariConfig overrides) of a name in ``variants``."""
+        if name in self.all_arms:
+            spec = dict(self.all_arms[name])
+            return spec.pop("variant"), spec
+        return name, {}
 
     def validate(self) -> "CompareConfig":
         from torchrl_hybrid.trainers.atari import ATARI_VARIANTS
         from torchrl_hybrid.trainers.hybrid import get_variant
 
-        bad = sorted(set(self.variants) - set(ATARI_VARIANTS))
+        for name, spec in self.arms.items():
+            if name in ATARI_VARIANTS:
+                raise ValueError(f"arms.{name}: an arm cannot take a variant's name; call it e.g. {name}_mine")
+            if not isinstance(spec, dict) or spec.get("variant") not in ATARI_VARIANTS:
+                raise ValueError(f"arms.{name} must be a mapping with variant: one of {list(ATARI_VARIANTS)} "
+                                 f"(plus AtariConfig overrides), got {spec!r}")
+        bad = sorted(set(self.variants) - set(ATARI_VARIANTS) - set(self.all_arms))
         if bad:
-            raise ValueError(f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)}")
+            raise ValueError(f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)} "
+                             f"or the arms {list(self.all_arms)} (or define one: '+arms.NAME={{variant: hybrid_dual, "
+                             "loss: {bc_labels: soft}}')")
         if self.workers < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers}")
         if self.launcher not in LAUNCHERS:
@@ -64,7 +97,7 @@ class CompareConfig:
         for label, folder in self.baselines.items():
             if not Path(folder).is_dir():
                 raise FileNotFoundError(f"baselines.{label}: {folder!r} is not a folder written by atari_compare")
-        if any(get_variant(v).bc is not None for v in self.variants):
+        if any(get_variant(self.arm(v)[0]).bc is not None for v in self.variants):
             missing = [g for g in self.games if not self.demos.get(g)]
             if missing:
                 raise ValueError(f"no demos for {missing}: record them with recipes/atari_demos.py and pass "
@@ -99,22 +132,30 @@ def _one(job: tuple[dict, str]) -> tuple[str, float]:
 def run_compare(cfg: CompareConfig) -> dict[str, Any]:
     """Runs the missing runs (``workers`` at a time, torch and ALE threads split
     between them), then :func:`analyse_compare`."""
+    from torchrl_hybrid.trainers.atari import atari_config
+
     cfg.validate()
     # 2 cores: two single-threaded runs side by side beat one two-threaded run
     threads = max(1, 2 // cfg.workers) if cfg.workers > 1 else 2
     jobs = []
     for game in cfg.games:
-        for variant in cfg.variants:
+        for name in cfg.variants:
+            variant, overrides = cfg.arm(name)
             for seed in cfg.seeds:
-                out = _run_dir(cfg, game, variant, seed)
+                out = _run_dir(cfg, game, name, seed)
                 if (out / "summary.json").exists():
                     continue
                 d = merge_dicts({"threads": threads, "env": {"num_threads": threads},
                             "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"}}, cfg.base)
+                d = merge_dicts(d, overrides)
                 d = merge_dicts(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
                                "out_dir": str(out), "env": {"game": game},
                                "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
-                jobs.append((d, f"{game}/{variant}_s{seed}"))
+                try:  # a misspelt override fails here, before any run has started
+                    atari_config(d).validate()
+                except (TypeError, ValueError) as err:
+                    raise ValueError(f"{game}/{name}: {err}") from None
+                jobs.append((d, f"{game}/{name}_s{seed}"))
     print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
     t0 = time.perf_counter()
     # a run takes `threads` CPUs (torch + ALE threads) of a Ray node
