@@ -194,6 +194,28 @@ def test_inverse_model_ready_hook_switches_bc_on_at_the_held_out_accuracy():
     assert float(loss.bc_coeff) == 2.0 and other.on_at == 320
 
 
+def test_delayed_coefficient_hook_anneals_the_bc_weight_linearly_to_zero():
+    from torchrl_hybrid.trainers.hooks import DelayedCoefficientHook
+
+    _, _, loss, _ = _bc_setup()
+
+    class FakeTrainer:
+        collected_frames = 0
+
+    hook = DelayedCoefficientHook(loss, "bc_coeff", 2.0, start_frames=100, anneal_frames=400)
+    hook._trainer = FakeTrainer()
+    seen = []
+    for frames in (0, 99, 100, 200, 300, 500, 900):
+        FakeTrainer.collected_frames = frames
+        hook()
+        seen.append(round(float(loss.bc_coeff), 6))
+    assert seen == [0.0, 0.0, 2.0, 1.5, 1.0, 0.0, 0.0]
+    constant = DelayedCoefficientHook(loss, "bc_coeff", 2.0, start_frames=100)  # the paper: stays on
+    assert [constant.at(f) for f in (99, 100, 10**7)] == [0.0, 2.0, 2.0]
+    with pytest.raises(ValueError, match="anneal_frames must be >= 0"):
+        DelayedCoefficientHook(loss, "bc_coeff", 2.0, 100, anneal_frames=-1)
+
+
 def test_coefficients_are_schedulable_buffers_and_losses_are_not_functional():
     from torchrl_hybrid.objectives import PolicyEntropyLoss
     actor, _ = make_tabular_actor_critic(7, 4)

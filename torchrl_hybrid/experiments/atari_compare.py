@@ -37,6 +37,8 @@ ROBUST_ARMS: dict[str, dict] = {
     "hybrid_dual_gate": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_confidence": 0.6}},
     "hybrid_dual_floor": {"variant": "hybrid_dual", "loss": {"bc_entropy_floor": 1.0}},
     "hybrid_dual_ready": {"variant": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
+    # soft labels whose weight falls to 0 over the first 2M frames after the switch-on
+    "hybrid_dual_soft_anneal": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
 }
 
 

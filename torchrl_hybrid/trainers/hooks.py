@@ -99,27 +99,41 @@ class CurriculumHook(TrainerHookBase):
 
 class DelayedCoefficientHook(TrainerHookBase):
     """Keeps a loss coefficient at 0 until ``start_frames`` frames were collected,
-    then sets it to ``value`` (the paper uses the BC term only after 100k frames).
+    then sets it to ``value`` (the paper uses the BC term only after 100k frames);
+    with ``anneal_frames > 0`` it then falls linearly to 0 over that many frames
+    (OURS: BC weight annealing, so that the RL signal takes over once the agent no
+    longer needs the inferred labels; 0 = the paper's constant weight).
 
     Args:
         loss: the loss module that owns the coefficient buffer.
         name: the buffer's name, e.g. ``"bc_coeff"``.
         value: the coefficient once switched on.
         start_frames: frames before switching on.
+        anneal_frames: frames over which it then decays to 0 (0: it stays at ``value``).
     """
 
-    def __init__(self, loss: LossModule, name: str, value: float, start_frames: int):
+    def __init__(self, loss: LossModule, name: str, value: float, start_frames: int, anneal_frames: int = 0):
         _check_schedulable(loss, name)
+        if anneal_frames < 0:
+            raise ValueError(f"anneal_frames must be >= 0, got {anneal_frames}")
         self.loss, self.name, self.value, self.start_frames = loss, name, float(value), int(start_frames)
+        self.anneal_frames = int(anneal_frames)
         self._trainer: Trainer | None = None
-        self._set(0.0 if self.start_frames > 0 else self.value)
+        self._set(self.at(0))
+
+    def at(self, frames: int) -> float:
+        """The coefficient after ``frames`` collected frames."""
+        if frames < self.start_frames:
+            return 0.0
+        if self.anneal_frames == 0:
+            return self.value
+        return self.value * max(0.0, 1.0 - (frames - self.start_frames) / self.anneal_frames)
 
     def _set(self, value: float) -> None:
         setattr(self.loss, self.name, value)  # a schedulable buffer: updated in place
 
     def __call__(self) -> None:
-        on = self._trainer.collected_frames >= self.start_frames
-        self._set(self.value if on else 0.0)
+        self._set(self.at(self._trainer.collected_frames))
 
     def state_dict(self) -> dict[str, Any]:
         return {"current": float(getattr(self.loss, self.name))}
