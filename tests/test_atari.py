@@ -330,8 +330,12 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     base = {k: v for k, v in TINY.items() if k != "total_frames"}
     cfg = CompareConfig(games=["Pong"], variants=["a2c", "hybrid_dual"], seeds=[0], total_frames=256,
                         out_dir=str(tmp_path), demos={"Pong": str(pong_demos / "demos")}, workers=1, base=base)
+    (tmp_path / "summary.json").write_text(json.dumps({"Breakout": ["an earlier comparison's table"]}))
     result = run_compare(cfg)
     assert [t["variant"] for t in result["Pong"]] == ["a2c", "hybrid_dual"]
+    # the out_dir's summary.json gains Pong and keeps the other game's table
+    assert json.loads((tmp_path / "summary.json").read_text()) == {"Breakout": ["an earlier comparison's table"],
+                                                                    **json.loads(json.dumps(result))}
     assert result["Pong"][0]["idm_accuracy_expert"] is None and 0 <= result["Pong"][1]["idm_accuracy_expert"] <= 1
     for f in ("curves.csv", "summary.csv", "comparison.png"):
         assert (tmp_path / "Pong" / f).stat().st_size > 0

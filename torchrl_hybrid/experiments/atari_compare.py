@@ -305,5 +305,9 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             print(f"{game:10s} {t['variant']:12s} seeds {t['seeds']}  final {t['final_mean']:7.2f}{ci_txt(t['final_ci95'])} "
                   f"{t['final_per_seed']}  AUC {t['auc_mean']:7.2f}{ci_txt(t['auc_ci95'])} {t['auc_per_seed']}"
                   + (f"  IDM acc {t[IDM_ACCURACY_EXPERT]:.1%}" if t[IDM_ACCURACY_EXPERT] is not None else ""))
-    (root / "summary.json").write_text(json.dumps(result, indent=2))
+    # one file for the whole out_dir: a comparison of other games (or a later one of some
+    # games) updates their entries and keeps the rest
+    path = root / "summary.json"
+    kept = json.loads(path.read_text()) if path.exists() else {}
+    path.write_text(json.dumps({**kept, **result}, indent=2))
     return result
