@@ -308,6 +308,10 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
     # one file for the whole out_dir: a comparison of other games (or a later one of some
     # games) updates their entries and keeps the rest
     path = root / "summary.json"
-    kept = json.loads(path.read_text()) if path.exists() else {}
+    try:
+        kept = json.loads(path.read_text()) if path.exists() else {}
+    except json.JSONDecodeError:  # derived data: rewritten from the runs' own files
+        warnings.warn(f"{path} is not valid JSON (truncated?); rewriting it with this comparison's games only")
+        kept = {}
     path.write_text(json.dumps({**kept, **result}, indent=2))
     return result
