@@ -345,6 +345,14 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     capsys.readouterr()
     run_compare(cfg)  # finished runs are not run again
     assert "0 run(s) to do" in capsys.readouterr().out
+    # analyse_only: nothing is started (no demos needed); the unfinished run is named and left out
+    only = CompareConfig(games=["Pong"], variants=["a2c", "hybrid_dual", "hybrid_dual_soft"], seeds=[0],
+                         out_dir=str(tmp_path), analyse_only=True)
+    assert [t["variant"] for t in run_compare(only)["Pong"]] == ["a2c", "hybrid_dual"]
+    assert "1 run(s) not finished, left out: Pong/hybrid_dual_soft_s0" in capsys.readouterr().out
+    assert not (tmp_path / "Pong" / "hybrid_dual_soft_s0").exists()
+    with pytest.raises(FileNotFoundError, match="no finished run"):
+        run_compare(CompareConfig(games=["Qbert"], variants=["a2c"], out_dir=str(tmp_path), analyse_only=True))
     with pytest.raises(ValueError, match=r"\+demos.Breakout=<folder>"):
         run_compare(CompareConfig(games=["Breakout"], out_dir=str(tmp_path)))
     with pytest.raises(FileNotFoundError, match="holds no dataset"):

@@ -65,6 +65,7 @@ class CompareConfig:
     address: str | None = None  # ray: the cluster to join; None starts a local one
     max_retries: int = 2        # ray: how often a run whose worker died is started again
     arms: dict = field(default_factory=dict)  # more named arms, beside (or replacing) ROBUST_ARMS
+    analyse_only: bool = False  # start no run: draw and tabulate the finished ones (demos not needed)
 
     @property
     def all_arms(self) -> dict[str, dict]:
@@ -99,7 +100,7 @@ class CompareConfig:
         for label, folder in self.baselines.items():
             if not Path(folder).is_dir():
                 raise FileNotFoundError(f"baselines.{label}: {folder!r} is not a folder written by atari_compare")
-        if any(get_variant(self.arm(v)[0]).bc is not None for v in self.variants):
+        if not self.analyse_only and any(get_variant(self.arm(v)[0]).bc is not None for v in self.variants):
             missing = [g for g in self.games if not self.demos.get(g)]
             if missing:
                 raise ValueError(f"no demos for {missing}: record them with recipes/atari_demos.py and pass "
@@ -133,10 +134,21 @@ def _one(job: tuple[dict, str]) -> tuple[str, float]:
 
 def run_compare(cfg: CompareConfig) -> dict[str, Any]:
     """Runs the missing runs (``workers`` at a time, torch and ALE threads split
-    between them), then :func:`analyse_compare`."""
+    between them), then :func:`analyse_compare`. With ``analyse_only`` it starts
+    nothing: it names the runs that are not finished and analyses the others."""
     from torchrl_hybrid.trainers.atari import atari_config
 
     cfg.validate()
+    if cfg.analyse_only:
+        todo = [f"{g}/{n}_s{s}" for g in cfg.games for n in cfg.variants for s in cfg.seeds
+                if not (_run_dir(cfg, g, n, s) / "summary.json").exists()]
+        print(f"analyse_only: {len(todo)} run(s) not finished, left out" + (f": {', '.join(todo)}" if todo else ""),
+              flush=True)
+        result = analyse_compare(cfg)
+        if not result:
+            raise FileNotFoundError(f"analyse_only: no finished run of {list(cfg.games)} x {list(cfg.variants)} "
+                                    f"x seeds {list(cfg.seeds)} in {cfg.out_dir!r} (nor in the baselines)")
+        return result
     # 2 cores: two single-threaded runs side by side beat one two-threaded run
     threads = max(1, 2 // cfg.workers) if cfg.workers > 1 else 2
     jobs = []
