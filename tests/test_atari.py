@@ -379,6 +379,25 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     assert json.loads((tmp_path / "b" / "Pong" / "a2c_s0" / "config.json").read_text())["loss"]["bc_labels"] == "argmax"
 
 
+def test_sweep_progress_counts_logged_frames(tmp_path):
+    from torchrl_hybrid.experiments.atari_compare import SweepProgress
+
+    logging, done, new = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    for d in (logging, done):
+        d.mkdir()
+    (logging / "metrics.csv").write_text("frames,return_mean\n1000,1.0\n2500,2.0\n")
+    (done / "metrics.csv").write_text("frames,return_mean\n5000,3.0\n")
+    (done / "summary.json").write_text("{}")
+    progress = SweepProgress([logging, done, new], frames_per_run=5000, disable=True)
+    assert progress.bar.total == 15000 and progress.bar.n == 7500  # a resumed run's frames count from the start
+    with open(logging / "metrics.csv", "a") as f:
+        f.write("4000,2.5\n41")  # a row being written is not read
+    assert progress.refresh() == 9000
+    new.mkdir()
+    (new / "metrics.csv").write_text("frames,return_mean\n" + "".join(f"{i * 8},0.0\n" for i in range(1, 600)))
+    assert progress.refresh() == 9000 + 4792  # a file longer than the tail that is read
+
+
 def test_fused_collection_policy_equals_actor_and_critic():
     from tensordict import TensorDict
     from torchrl.envs.utils import ExplorationType, set_exploration_type

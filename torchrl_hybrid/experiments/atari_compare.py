@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import threading
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -25,7 +26,7 @@ from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci
 
-__all__ = ["CompareConfig", "ROBUST_ARMS", "run_compare", "analyse_compare", "load_runs"]
+__all__ = ["CompareConfig", "ROBUST_ARMS", "SweepProgress", "run_compare", "analyse_compare", "load_runs"]
 
 # Named arms: a variant plus AtariConfig overrides, listed in ``variants`` like a variant
 # and run in ``<out_dir>/<game>/<arm>_s<seed>``, so that the paper's agent, a robust
@@ -132,6 +133,72 @@ def _one(job: tuple[dict, str]) -> tuple[str, float]:
 
 
 
+def _logged_frames(run_dir: Path) -> int:
+    """The game frames of ``run_dir``'s last logged row (0 before its first one)."""
+    f = run_dir / "metrics.csv"
+    try:
+        with open(f, "rb") as fh:
+            fh.seek(0, 2)
+            start = max(0, fh.tell() - 4096)
+            fh.seek(start)
+            lines = fh.read().decode(errors="replace").split("\n")
+    except FileNotFoundError:
+        return 0
+    # only whole rows: the last piece may be a row being written, the first one cut by the seek
+    lines = lines[1 if start else 0:-1]
+    for line in reversed(lines):
+        head = line.split(",", 1)[0]
+        if head.isdigit():
+            return int(head)
+    return 0
+
+
+class SweepProgress:
+    """A progress bar over the game frames of a sweep's runs, read every ``interval``
+    seconds from their ``metrics.csv`` (when several runs train side by side their own
+    bars are off). Frames a resumed run had already done before the sweep started
+    count as done from the start, so the rate and time left are this sweep's own."""
+
+    def __init__(self, run_dirs: Sequence[Path], frames_per_run: int, interval: float = 30.0,
+                 disable: bool = False):
+        from tqdm import tqdm
+
+        self.run_dirs = [Path(d) for d in run_dirs]
+        self.frames_per_run = int(frames_per_run)
+        self.interval = interval
+        start = self.frames()
+        self.bar = tqdm(total=len(self.run_dirs) * self.frames_per_run, initial=start, unit="frame",
+                        unit_scale=True, desc=f"{len(self.run_dirs)} run(s)", disable=disable)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._poll, daemon=True)
+
+    def frames(self) -> int:
+        return sum(self.frames_per_run if (d / "summary.json").exists()
+                   else min(_logged_frames(d), self.frames_per_run) for d in self.run_dirs)
+
+    def refresh(self) -> int:
+        self.bar.n = self.frames()
+        self.bar.refresh()
+        return self.bar.n
+
+    def write(self, line: str) -> None:
+        self.bar.write(line)
+
+    def _poll(self) -> None:
+        while not self._stop.wait(self.interval):
+            self.refresh()
+
+    def __enter__(self) -> "SweepProgress":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.refresh()
+        self.bar.close()
+
+
 def run_compare(cfg: CompareConfig) -> dict[str, Any]:
     """Runs the missing runs (``workers`` at a time, torch and ALE threads split
     between them), then :func:`analyse_compare`. With ``analyse_only`` it starts
@@ -172,10 +239,15 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                 jobs.append((d, f"{game}/{name}_s{seed}"))
     print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
     t0 = time.perf_counter()
-    # a run takes `threads` CPUs (torch + ALE threads) of a Ray node
-    for name, secs in run_jobs(_one, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
-                               cpus_per_job=threads if cfg.launcher == "ray" else 1, max_retries=cfg.max_retries):
-        print(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)", flush=True)
+    # one run alone shows its own bar; side by side (or on a cluster whose workers write
+    # elsewhere) they don't, and this bar follows their metrics.csv here
+    bar_off = not jobs or (cfg.workers == 1 and cfg.launcher == "local") or cfg.address is not None
+    with SweepProgress([Path(d["out_dir"]) for d, _ in jobs], cfg.total_frames, disable=bar_off) as progress:
+        # a run takes `threads` CPUs (torch + ALE threads) of a Ray node
+        for name, secs in run_jobs(_one, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
+                                   cpus_per_job=threads if cfg.launcher == "ray" else 1,
+                                   max_retries=cfg.max_retries):
+            progress.write(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)")
     return analyse_compare(cfg)
 
 
