@@ -189,12 +189,14 @@ class SweepProgress:
             self.refresh()
 
     def __enter__(self) -> "SweepProgress":
-        self._thread.start()
+        if not self.bar.disable:  # a hidden bar needs no polling of the runs' files
+            self._thread.start()
         return self
 
     def __exit__(self, *exc) -> None:
         self._stop.set()
-        self._thread.join()
+        if self._thread.is_alive():
+            self._thread.join()
         self.refresh()
         self.bar.close()
 
