@@ -28,7 +28,7 @@ def main(cfg: DictConfig) -> None:
     except (ValueError, TypeError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
-    print(f"\nresults: {raw['out_dir']}/<game>/comparison.png, curves.csv, summary.csv")
+    print(f"\nresults: {raw['out_dir']}/<game>/comparison.png, curves.csv, summary.csv, summary.md")
 
 
 if __name__ == "__main__":

@@ -337,7 +337,7 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     assert json.loads((tmp_path / "summary.json").read_text()) == {"Breakout": ["an earlier comparison's table"],
                                                                     **json.loads(json.dumps(result))}
     assert result["Pong"][0]["idm_accuracy_expert"] is None and 0 <= result["Pong"][1]["idm_accuracy_expert"] <= 1
-    for f in ("curves.csv", "summary.csv", "comparison.png"):
+    for f in ("curves.csv", "summary.csv", "summary.md", "comparison.png"):
         assert (tmp_path / "Pong" / f).stat().st_size > 0
     rows = (tmp_path / "Pong" / "curves.csv").read_text().splitlines()
     assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy_expert,idm_accuracy,entropy,loss_bc"
@@ -396,6 +396,39 @@ def test_sweep_progress_counts_logged_frames(tmp_path):
     new.mkdir()
     (new / "metrics.csv").write_text("frames,return_mean\n" + "".join(f"{i * 8},0.0\n" for i in range(1, 600)))
     assert progress.refresh() == 9000 + 4792  # a file longer than the tail that is read
+
+
+def test_comparison_states_faster_or_slower_than_a2c_only_with_3_seeds_each(tmp_path):
+    from torchrl_hybrid.experiments.atari_compare import _summary_markdown, _versus_reference
+
+    def row(variant, auc, acc=None):
+        return {"variant": variant, "seeds": len(auc), "final_per_seed": auc, "final_mean": float(sum(auc) / len(auc)),
+                "final_ci95": None, "auc_per_seed": auc, "auc_mean": float(sum(auc) / len(auc)), "auc_ci95": None,
+                "idm_accuracy_expert": acc}
+
+    table = [row("a2c", [10.0, 11.0, 12.0]), row("fast", [20.0, 21.0, 22.0], 0.7),
+             row("same", [9.0, 11.5, 12.5], 0.5), row("slow", [1.0, 2.0, 3.0]), row("two", [30.0, 31.0]),
+             row("stalled", [30.0, 31.0, float("nan")])]
+    _versus_reference(table)
+    by = {t["variant"]: t for t in table}
+    assert by["a2c"]["verdict_vs_a2c"] == "" and by["a2c"]["auc_minus_a2c"] is None
+    assert by["fast"]["verdict_vs_a2c"] == "faster" and by["fast"]["auc_minus_a2c"] == 10.0
+    lo, hi = by["fast"]["auc_minus_a2c_ci95"]
+    assert 0 < lo < 10 < hi
+    assert by["fast"]["auc_vs_a2c_p"] == pytest.approx(0.1)  # the smallest p of 3 seeds against 3
+    assert by["slow"]["verdict_vs_a2c"] == "slower"
+    assert by["same"]["verdict_vs_a2c"] == "not distinguishable" and by["same"]["auc_vs_a2c_p"] > 0.5
+    # 2 seeds, or a seed without a score (no episode ended), give no verdict
+    assert by["two"]["verdict_vs_a2c"].startswith("too few seeds (2 vs 3")
+    assert by["stalled"]["verdict_vs_a2c"].startswith("too few seeds (2 vs 3")
+    md = _summary_markdown("Breakout", table, 200_000).splitlines()
+    assert md[0] == "### Breakout" and "last 200k game frames" in md[2]
+    assert md[7].startswith("| fast | 3 | 20.00, 21.00, 22.00 | 21.00 |") and md[7].endswith("p = 0.10 | faster |")
+    assert "| 70.0% |" in md[7] and "| 30.00, 31.00, – |" in md[11]
+    # no a2c in the comparison: no verdicts at all
+    table = [row("fast", [20.0, 21.0, 22.0])]
+    _versus_reference(table)
+    assert table[0]["verdict_vs_a2c"] == "" and "| – | – |" in _summary_markdown("Pong", table, 100_000)
 
 
 def test_fused_collection_policy_equals_actor_and_critic():

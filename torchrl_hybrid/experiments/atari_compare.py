@@ -24,7 +24,7 @@ import numpy as np
 from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
-from torchrl_hybrid.utils.stats import mean_ci
+from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
 __all__ = ["CompareConfig", "ROBUST_ARMS", "SweepProgress", "run_compare", "analyse_compare", "load_runs"]
 
@@ -310,9 +310,68 @@ def _per_seed(ax, runs: list[dict], key: str, ci: int, variant: str) -> None:
             ax.plot(*zip(*pts), color=f"C{ci}", lw=1, label=variant if k == 0 else None)
 
 
+REFERENCE = "a2c"
+
+
+def _versus_reference(table: list[dict]) -> None:
+    """Adds to each row the difference of its mean AUC to ``a2c``'s, its bootstrap 95 %
+    interval and a two-sided permutation-test p-value (both need 3 or more finite
+    seeds on each side: a percentile bootstrap of 2 values is no interval), and a verdict: ``faster`` / ``slower`` where the interval
+    excludes 0, else ``not distinguishable``. With 3 seeds against 3 the smallest
+    attainable p is 0.1 (all 20 splits enumerated), so p says how far from that the
+    seeds are; the interval is the criterion."""
+    ref = next((t for t in table if t["variant"] == REFERENCE), None)
+    for t in table:
+        t.update({"auc_minus_a2c": None, "auc_minus_a2c_ci95": None, "auc_vs_a2c_p": None, "verdict_vs_a2c": ""})
+        if ref is None or t is ref:
+            continue
+        a = np.array(t["auc_per_seed"], float)
+        b = np.array(ref["auc_per_seed"], float)
+        a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+        if min(len(a), len(b)) < 3:
+            t["verdict_vs_a2c"] = f"too few seeds ({len(a)} vs {len(b)} finished with a score; 3 each needed)"
+            continue
+        d, lo, hi = mean_diff_ci(a, b)
+        t.update({"auc_minus_a2c": round(d, 2), "auc_minus_a2c_ci95": [round(lo, 2), round(hi, 2)],
+                  "auc_vs_a2c_p": round(permutation_p(a, b), 3),
+                  "verdict_vs_a2c": "faster" if lo > 0 else "slower" if hi < 0 else "not distinguishable"})
+
+
+def _summary_markdown(game: str, table: list[dict], window: int) -> str:
+    """The per-game table of ``summary.csv`` as Markdown, to paste into a README."""
+    def num(x) -> str:
+        return "–" if x is None or not math.isfinite(x) else f"{x:.2f}"
+
+    def ci(c) -> str:
+        return f" [{c[0]:.2f}, {c[1]:.2f}]" if c else ""
+
+    def seeds(xs) -> str:
+        return ", ".join(num(x) for x in xs)
+
+    lines = [f"### {game}", "",
+             f"Score: mean raw episode score over the last {window // 1000}k game frames; final = at the end, "
+             "AUC = mean of that curve over the run (higher = learned faster). Intervals: bootstrap 95 % over "
+             "seeds (3 or more); AUC − a2c: difference of means, its bootstrap interval and a permutation-test p "
+             "(3 seeds against 3: p ≥ 0.1).", "",
+             "| variant | seeds | final per seed | final mean | AUC per seed | AUC mean | IDM accuracy | "
+             "AUC − a2c | faster than a2c? |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for t in table:
+        acc = t[IDM_ACCURACY_EXPERT]
+        diff = ("–" if t["auc_minus_a2c"] is None else
+                f"{t['auc_minus_a2c']:+.2f} [{t['auc_minus_a2c_ci95'][0]:+.2f}, {t['auc_minus_a2c_ci95'][1]:+.2f}],"
+                f" p = {t['auc_vs_a2c_p']:.2f}")
+        lines.append(f"| {t['variant']} | {t['seeds']} | {seeds(t['final_per_seed'])} | "
+                     f"{num(t['final_mean'])}{ci(t['final_ci95'])} | {seeds(t['auc_per_seed'])} | "
+                     f"{num(t['auc_mean'])}{ci(t['auc_ci95'])} | {'–' if acc is None else f'{acc:.1%}'} | {diff} | "
+                     f"{t['verdict_vs_a2c'] or '–'} |")
+    return "\n".join(lines) + "\n"
+
+
 def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]:
     """Per game: ``curves.csv`` (every logged point of every run), ``summary.csv``
-    and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin;
+    (with each variant's AUC against ``a2c``: see :func:`_versus_reference`), the same
+    table as ``summary.md``, and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin;
     the inverse model's accuracy on demo pairs; the policy's entropy)."""
     import matplotlib
 
@@ -381,16 +440,20 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         fig.tight_layout()
         fig.savefig(gdir / "comparison.png", dpi=110)
         plt.close(fig)
+        _versus_reference(table)
         with open(gdir / "summary.csv", "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(table[0]))
             w.writeheader()
             w.writerows(table)
+        (gdir / "summary.md").write_text(_summary_markdown(game, table, win))
         result[game] = table
         for t in table:
             ci_txt = (lambda c: f" [{c[0]:.2f}, {c[1]:.2f}]" if c else "")
             print(f"{game:10s} {t['variant']:12s} seeds {t['seeds']}  final {t['final_mean']:7.2f}{ci_txt(t['final_ci95'])} "
                   f"{t['final_per_seed']}  AUC {t['auc_mean']:7.2f}{ci_txt(t['auc_ci95'])} {t['auc_per_seed']}"
-                  + (f"  IDM acc {t[IDM_ACCURACY_EXPERT]:.1%}" if t[IDM_ACCURACY_EXPERT] is not None else ""))
+                  + (f"  IDM acc {t[IDM_ACCURACY_EXPERT]:.1%}" if t[IDM_ACCURACY_EXPERT] is not None else "")
+                  + (f"  AUC - a2c {t['auc_minus_a2c']:+.2f}{ci_txt(t['auc_minus_a2c_ci95'])} p {t['auc_vs_a2c_p']:.2f}"
+                     f" ({t['verdict_vs_a2c']})" if t["auc_minus_a2c"] is not None else ""))
     # one file for the whole out_dir: a comparison of other games (or a later one of some
     # games) updates their entries and keeps the rest
     path = root / "summary.json"
