@@ -339,6 +339,8 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     assert result["Pong"][0]["idm_accuracy_expert"] is None and 0 <= result["Pong"][1]["idm_accuracy_expert"] <= 1
     for f in ("curves.csv", "summary.csv", "summary.md", "comparison.png"):
         assert (tmp_path / "Pong" / f).stat().st_size > 0
+    md = (tmp_path / "Pong" / "summary.md").read_text()
+    assert "| hybrid_dual | 1 |" in md and "too few seeds (0 vs 0" in md and "along the run" in md  # no episode ended in 256 frames
     rows = (tmp_path / "Pong" / "curves.csv").read_text().splitlines()
     assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy_expert,idm_accuracy,entropy,loss_bc"
     assert len(rows) == 1 + 2 * 3  # 3 logged points a run
@@ -425,6 +427,9 @@ def test_comparison_states_faster_or_slower_than_a2c_only_with_3_seeds_each(tmp_
     assert md[0] == "### Breakout" and "last 200k game frames" in md[2]
     assert md[7].startswith("| fast | 3 | 20.00, 21.00, 22.00 | 21.00 |") and md[7].endswith("p = 0.10 | faster |")
     assert "| 70.0% |" in md[7] and "| 30.00, 31.00, – |" in md[11]
+    md = _summary_markdown("Breakout", table[:2], 200_000,
+                           {"a2c": ([1_000_000, 2_000_000], [1.5, 3.0]), "fast": ([1_000_000, 2_000_000], [2.0, float("nan")])})
+    assert md.splitlines()[-4:] == ["| variant | 1M | 2M |", "|---|---|---|", "| a2c | 1.50 | 3.00 |", "| fast | 2.00 | – |"]
     # no a2c in the comparison: no verdicts at all
     table = [row("fast", [20.0, 21.0, 22.0])]
     _versus_reference(table)

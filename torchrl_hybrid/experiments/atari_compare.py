@@ -337,8 +337,11 @@ def _versus_reference(table: list[dict]) -> None:
                   "verdict_vs_a2c": "faster" if lo > 0 else "slower" if hi < 0 else "not distinguishable"})
 
 
-def _summary_markdown(game: str, table: list[dict], window: int) -> str:
-    """The per-game table of ``summary.csv`` as Markdown, to paste into a README."""
+def _summary_markdown(game: str, table: list[dict], window: int,
+                      milestones: dict[str, tuple[list[int], list[float]]] | None = None) -> str:
+    """The per-game table of ``summary.csv`` as Markdown, to paste into a README, and
+    with ``milestones`` (variant -> frames, mean score over seeds there) a second table
+    of the score along the run."""
     def num(x) -> str:
         return "–" if x is None or not math.isfinite(x) else f"{x:.2f}"
 
@@ -349,7 +352,7 @@ def _summary_markdown(game: str, table: list[dict], window: int) -> str:
         return ", ".join(num(x) for x in xs)
 
     lines = [f"### {game}", "",
-             f"Score: mean raw episode score over the last {window // 1000}k game frames; final = at the end, "
+             f"Score: mean raw episode score over the last {window / 1000:g}k game frames; final = at the end, "
              "AUC = mean of that curve over the run (higher = learned faster). Intervals: bootstrap 95 % over "
              "seeds (3 or more); AUC − a2c: difference of means, its bootstrap interval and a permutation-test p "
              "(3 seeds against 3: p ≥ 0.1).", "",
@@ -365,6 +368,12 @@ def _summary_markdown(game: str, table: list[dict], window: int) -> str:
                      f"{num(t['final_mean'])}{ci(t['final_ci95'])} | {seeds(t['auc_per_seed'])} | "
                      f"{num(t['auc_mean'])}{ci(t['auc_ci95'])} | {'–' if acc is None else f'{acc:.1%}'} | {diff} | "
                      f"{t['verdict_vs_a2c'] or '–'} |")
+    if milestones:
+        frames = next(iter(milestones.values()))[0]
+        lines += ["", f"Mean score over seeds (last {window / 1000:g}k frames) along the run:", "",
+                  "| variant | " + " | ".join(f"{x / 1e6:g}M" for x in frames) + " |",
+                  "|---|" + "---|" * len(frames)]
+        lines += [f"| {v} | " + " | ".join(num(x) for x in scores) + " |" for v, (_, scores) in milestones.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -402,6 +411,9 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         grid = grid[grid >= win]
         fig, axes = plt.subplots(1, 3, figsize=(17, 4.2))
         table = []
+        # five points along the run (every 1M frames of a 5M run)
+        marks = [int(grid[-1] * k / 5) for k in range(1, 6)]
+        milestones = {}
         for ci, (variant, rs) in enumerate(runs.items()):
             curves = np.array([_score_curve(r["rows"], grid, win) for r in rs])
             for c in curves:
@@ -411,6 +423,10 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
                 mean_curve = np.nanmean(curves, 0)
             axes[0].plot(grid, mean_curve, color=f"C{ci}", lw=2, label=f"{variant} ({len(rs)} seeds)")
             final = curves[:, -1]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                milestones[variant] = (marks, np.nanmean([_score_curve(r["rows"], np.array(marks), win) for r in rs],
+                                                         0).tolist())
             with warnings.catch_warnings():  # NaN where no episode has finished yet
                 warnings.simplefilter("ignore", RuntimeWarning)
                 auc = np.nanmean(curves, 1)  # mean of the smoothed curve = normalised area under it
@@ -445,7 +461,7 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             w = csv.DictWriter(f, fieldnames=list(table[0]))
             w.writeheader()
             w.writerows(table)
-        (gdir / "summary.md").write_text(_summary_markdown(game, table, win))
+        (gdir / "summary.md").write_text(_summary_markdown(game, table, win, milestones))
         result[game] = table
         for t in table:
             ci_txt = (lambda c: f" [{c[0]:.2f}, {c[1]:.2f}]" if c else "")
