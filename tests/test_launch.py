@@ -31,6 +31,22 @@ def test_run_jobs_gives_every_result_once_locally_and_on_ray(cluster):
         list(run_jobs(square, [1], launcher="slurm"))
 
 
+def _pid(_job):
+    import os
+    import time
+    time.sleep(0.2)  # so that both workers take jobs
+    return os.getpid()
+
+
+def test_fresh_process_runs_each_local_job_in_a_new_process():
+    """Atari runs side by side: a worker that ran one run held twice its memory in the next;
+    with fresh_process each job gets its own process."""
+    pids = list(run_jobs(_pid, range(4), launcher="local", workers=2, fresh_process=True))
+    assert len(set(pids)) == 4
+    pids = list(run_jobs(_pid, range(4), launcher="local", workers=2))
+    assert len(set(pids)) == 2  # the default reuses the two workers
+
+
 def _killing(target: str, times: int):
     """A run function that SIGKILLs its own worker ``times`` times, right after the run
     named ``target`` wrote its first checkpoint (in the middle of the run)."""

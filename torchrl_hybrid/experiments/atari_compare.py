@@ -248,7 +248,7 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
         # a run takes `threads` CPUs (torch + ALE threads) of a Ray node
         for name, secs in run_jobs(_one, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
                                    cpus_per_job=threads if cfg.launcher == "ray" else 1,
-                                   max_retries=cfg.max_retries):
+                                   max_retries=cfg.max_retries, fresh_process=True):
             progress.write(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)")
     return analyse_compare(cfg)
 

@@ -67,7 +67,8 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
 
 
 def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "local", workers: int = 2,
-             address: str | None = None, cpus_per_job: float = 1.0, max_retries: int = 2) -> Iterator[Any]:
+             address: str | None = None, cpus_per_job: float = 1.0, max_retries: int = 2,
+             fresh_process: bool = False) -> Iterator[Any]:
     """Runs ``fn(job)`` for every job and yields the results in the order they finish.
 
     Args:
@@ -82,6 +83,9 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
         address: Ray only: the cluster to join (``"auto"``, ``"ray://host:10001"``, ...);
             ``None`` starts a local cluster with ``workers`` CPUs.
         max_retries: Ray only: how often a job whose worker died is started again.
+        fresh_process: local, ``workers > 1``: each job in a new process, so a job's memory
+            goes back to the OS before the next one starts (a process that ran an Atari run
+            held about twice the memory in the next: 10.8 instead of 4.9 GB).
     """
     if launcher not in LAUNCHERS:
         raise ValueError(f"launcher={launcher!r}: choose one of {LAUNCHERS}")
@@ -93,7 +97,8 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
         if workers == 1:
             yield from map(fn, jobs)
             return
-        with mp.get_context("spawn").Pool(workers, initializer=_mark_worker) as pool:
+        with mp.get_context("spawn").Pool(workers, initializer=_mark_worker,
+                                          maxtasksperchild=1 if fresh_process else None) as pool:
             yield from pool.imap_unordered(fn, jobs)
         return
     ray = _ray()
