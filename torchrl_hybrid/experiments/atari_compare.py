@@ -315,9 +315,9 @@ REFERENCE = "a2c"
 
 def _versus_reference(table: list[dict]) -> None:
     """Adds to each row the difference of its mean AUC to ``a2c``'s, its bootstrap 95 %
-    interval and a two-sided permutation-test p-value (both need 3 or more finite
-    seeds on each side: a percentile bootstrap of 2 values is no interval), and a verdict: ``faster`` / ``slower`` where the interval
-    excludes 0, else ``not distinguishable``. With 3 seeds against 3 the smallest
+    interval and a two-sided permutation-test p-value (both need 3 or more finite seeds
+    on each side: a percentile bootstrap of 2 values is no interval), and a verdict:
+    ``faster`` / ``slower`` where the interval excludes 0, else ``not distinguishable``. With 3 seeds against 3 the smallest
     attainable p is 0.1 (all 20 splits enumerated), so p says how far from that the
     seeds are; the interval is the criterion."""
     ref = next((t for t in table if t["variant"] == REFERENCE), None)
