@@ -22,9 +22,10 @@ from torchrl_hybrid.utils.process import configure_process
 def main(cfg: DictConfig) -> None:
     raw = OmegaConf.to_container(cfg, resolve=True)
     raw.pop("hydra", None)
-    configure_process(None)
     try:
-        run_compare(CompareConfig(**raw))
+        cfg = CompareConfig(**raw)
+        configure_process(cfg.process_threads())  # workers=1: the runs train in this process
+        run_compare(cfg)
     except (ValueError, TypeError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

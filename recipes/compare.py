@@ -34,7 +34,8 @@ def main(cfg: DictConfig) -> None:
     out_dir = raw.pop("out_dir")
     for k in ("variant", "seed", "resume", "overwrite"):  # set per run by the comparison
         raw.pop(k, None)
-    configure_process(None)
+    in_process = options.get("workers", 2) == 1 and options.get("launcher", "local") == "local"
+    configure_process(raw.get("threads") if in_process else None)  # workers=1: the runs train here
     try:
         known = ("variants", "seeds", "workers", "launcher", "address", "max_retries")
         unknown = set(options) - set(known)

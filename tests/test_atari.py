@@ -324,6 +324,19 @@ def test_orthogonal_initialisation():
         make_atari_actor_critic(6, init="xavier")
 
 
+def test_compare_recipe_gives_in_process_runs_their_threads():
+    """workers=1 trains in the recipe's own process: the recipe sets its torch threads to the
+    runs' (two such sweeps side by side with base.threads=1 once ran at torch's default of 2
+    threads each, 4 busy threads on 2 cores); worker processes set their own."""
+    from torchrl_hybrid.experiments.atari_compare import CompareConfig
+
+    assert CompareConfig(workers=1, base={"threads": 1}).process_threads() == 1
+    assert CompareConfig(workers=1).process_threads() == 2
+    assert CompareConfig(workers=2, base={"threads": 1}).process_threads() is None
+    assert CompareConfig(workers=1, launcher="ray").process_threads() is None
+    assert CompareConfig(workers=2).run_threads == 1 and CompareConfig(workers=1).run_threads == 2
+
+
 def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     from torchrl_hybrid.experiments.atari_compare import CompareConfig, run_compare
 

@@ -87,7 +87,8 @@ def test_library_calls_leave_the_process_settings_alone(tmp_path):
     try:
         train_taxi(tiny(tmp_path / "run", threads=1))  # threads is for the recipes, not a library call
         assert torch.get_num_threads() == want
-        configure_worker(1)  # not a worker process of run_jobs: nothing changes
+        with pytest.warns(RuntimeWarning, match=r"asks for 1 torch thread\(s\) but runs in the calling process"):
+            configure_worker(1)  # not a worker process of run_jobs: nothing changes, but it says so
         assert torch.get_num_threads() == want
     finally:
         torch.set_num_threads(before)

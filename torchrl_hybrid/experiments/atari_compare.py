@@ -72,6 +72,25 @@ class CompareConfig:
     def all_arms(self) -> dict[str, dict]:
         return {**ROBUST_ARMS, **self.arms}
 
+    @property
+    def run_threads(self) -> int:
+        """The torch threads each run asks for: :attr:`default_threads` or ``base.threads``."""
+        return int(self.base.get("threads", self.default_threads))
+
+    @property
+    def default_threads(self) -> int:
+        """Torch and ALE threads per run unless ``base`` sets them: 2 // ``workers`` side by
+        side (two single-threaded runs on 2 cores beat one two-threaded run), 2 alone."""
+        return max(1, 2 // self.workers) if self.workers > 1 else 2
+
+    def process_threads(self) -> int | None:
+        """The torch threads the recipe sets in its own process: with ``workers=1`` (and the
+        local launcher) the runs train in that process, so its thread count is theirs
+        (``base.threads=1`` of two sweeps side by side would otherwise leave each at torch's
+        default of one thread per core: 4 busy threads on 2 cores, about 10x slower);
+        ``None`` when the runs have worker processes of their own."""
+        return self.run_threads if self.workers == 1 and self.launcher == "local" else None
+
     def arm(self, name: str) -> tuple[str, dict]:
         """(the variant, the AtariConfig overrides) of a name in ``variants``."""
         if name in self.all_arms:
@@ -218,8 +237,7 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
             raise FileNotFoundError(f"analyse_only: no finished run of {list(cfg.games)} x {list(cfg.variants)} "
                                     f"x seeds {list(cfg.seeds)} in {cfg.out_dir!r} (nor in the baselines)")
         return result
-    # 2 cores: two single-threaded runs side by side beat one two-threaded run
-    threads = max(1, 2 // cfg.workers) if cfg.workers > 1 else 2
+    threads = cfg.default_threads
     jobs = []
     for game in cfg.games:
         for name in cfg.variants:

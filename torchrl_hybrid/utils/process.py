@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import warnings
 
 import torch
 
@@ -26,8 +27,16 @@ def configure_process(threads: int | None = None) -> None:
 
 def configure_worker(threads: int | None = None) -> None:
     """:func:`configure_process` in a worker process started by
-    :func:`~torchrl_hybrid.utils.launch.run_jobs`; nothing in the caller's own process."""
+    :func:`~torchrl_hybrid.utils.launch.run_jobs`; nothing in the caller's own process,
+    but a warning when its torch thread count is not the ``threads`` the job asks for
+    (``run_jobs(..., workers=1)`` runs jobs there: set it with :func:`configure_process`
+    or ``torch.set_num_threads`` first)."""
     from torchrl_hybrid.utils.launch import in_worker
 
     if in_worker():
         configure_process(threads)
+    elif threads and torch.get_num_threads() != int(threads):
+        warnings.warn(f"this job asks for {int(threads)} torch thread(s) but runs in the calling process, which "
+                      f"has {torch.get_num_threads()} (workers=1 leaves the caller's settings alone): call "
+                      f"torchrl_hybrid.utils.process.configure_process({int(threads)}) first, or more runs "
+                      "side by side than cores will crawl", RuntimeWarning, stacklevel=2)
