@@ -10,8 +10,11 @@ it holds the actor and the inverse model). ``--demos``: the dataset that run lea
 (``recipes/atari_demos.py``; it keeps the true actions for diagnostics only). Prints, per
 action, the share of the expert's true actions, of the inverse model's argmax labels and of
 the agent's greedy actions at the expert's states, the labels' accuracy, how often the label
-equals the agent's greedy action, the mean confidence (max P_i), and what a confidence gate
-(``loss.bc_confidence``) would keep at a few thresholds.
+equals the agent's greedy action, the mean confidence (max P_i), what a confidence gate
+(``loss.bc_confidence``) would keep at a few thresholds, and which true actions each label
+stands for (the columns of the true x label confusion matrix: look-alike actions merged into one
+label show up as one label taking several true actions). The figure draws the shares and the
+confusion matrix.
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ from pathlib import Path
 import torch
 
 from torchrl_hybrid.data import EXPERT_ACTION_KEY, load_demos
+from torchrl_hybrid.envs.atari import action_names
 from torchrl_hybrid.modules import make_atari_actor_critic
 from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.run import make_inverse_model
@@ -74,9 +78,16 @@ def inverse_labels(model: str | Path, demos: str | Path, batch: int = 256) -> di
     def share(x):
         return (torch.bincount(x, minlength=n_actions).float() / len(x)).tolist()
 
+    game = ckpt["config"]["env"]["game"]
+    names = action_names(game)
+    if len(names) != n_actions:
+        raise ValueError(f"{model} has {n_actions} actions, {game}'s minimal action set {len(names)}")
+    # confusion[t][l]: share of all pairs whose true action is t and whose label is l
+    confusion = torch.bincount(true * n_actions + labels, minlength=n_actions ** 2).float() / len(true)
     return {
-        "model": str(model), "demos": str(demos), "game": ckpt["config"]["env"]["game"],
-        "variant": ckpt["config"]["variant"], "pairs": len(pairs), "actions": n_actions,
+        "model": str(model), "demos": str(demos), "game": game,
+        "variant": ckpt["config"]["variant"], "pairs": len(pairs), "actions": n_actions, "action_names": names,
+        "confusion": confusion.view(n_actions, n_actions).tolist(),
         "share_true": share(true), "share_labels": share(labels), "share_agent_greedy": share(greedy),
         "accuracy": float((labels == true).float().mean()),
         "labels_equal_agent_greedy": float((labels == greedy).float().mean()),
@@ -97,17 +108,29 @@ def plot(r: dict, path: str | Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    x, w = np.arange(r["actions"]), 0.27
-    fig, ax = plt.subplots(figsize=(6.4, 3.2))
+    n, names = r["actions"], r.get("action_names") or [str(a) for a in range(r["actions"])]
+    x, w = np.arange(n), 0.27
+    fig, (ax, cx) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [1.5, 1]})
     ax.bar(x - w, r["share_true"], w, label="expert's true action")
     ax.bar(x, r["share_labels"], w, label=f"inverse model's label (accuracy {r['accuracy']:.1%})")
     ax.bar(x + w, r["share_agent_greedy"], w, label="agent's greedy action at s")
-    ax.set_xticks(x)
-    ax.set_xlabel("action")
+    ax.set_xticks(x, names, rotation=45, ha="right", fontsize=8)
     ax.set_ylabel("share of the expert's pairs")
     ax.set_title(f"{r['game']}, {r['variant']}: labels equal the agent's greedy action in "
                  f"{r['labels_equal_agent_greedy']:.0%} of pairs", fontsize=9)
     ax.legend(fontsize=8)
+    if "confusion" in r:
+        c = np.array(r["confusion"])
+        rows = c / np.maximum(c.sum(1, keepdims=True), 1e-12)  # P(label | true action)
+        im = cx.imshow(rows, vmin=0, vmax=1, cmap="viridis")
+        cx.set_xticks(x, names, rotation=45, ha="right", fontsize=7)
+        cx.set_yticks(x, names, fontsize=7)
+        cx.set_xlabel("inverse model's label")
+        cx.set_ylabel("expert's true action")
+        cx.set_title("P(label | true action)", fontsize=9)
+        fig.colorbar(im, ax=cx, fraction=0.046)
+    else:
+        cx.set_visible(False)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -127,9 +150,15 @@ def main() -> None:
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from None
     print(f"{r['game']} {r['variant']}: {r['pairs']} expert pairs, {r['actions']} actions")
-    print(f"{'action':>6} {'true':>7} {'label':>7} {'agent':>7}")
+    names = r["action_names"]
+    print(f"{'action':>14} {'true':>7} {'label':>7} {'agent':>7}   true actions of the pairs given this label")
     for a in range(r["actions"]):
-        print(f"{a:6d} {r['share_true'][a]:7.1%} {r['share_labels'][a]:7.1%} {r['share_agent_greedy'][a]:7.1%}")
+        col = [r["confusion"][t][a] for t in range(r["actions"])]
+        # (only for labels given to at least 0.5 % of the pairs: a handful of pairs says nothing)
+        took = sorted(((c / sum(col), names[t]) for t, c in enumerate(col) if c > 0),
+                      reverse=True)[:4] if sum(col) >= 0.005 else []
+        print(f"{a:2d} {names[a]:>11} {r['share_true'][a]:7.1%} {r['share_labels'][a]:7.1%} "
+              f"{r['share_agent_greedy'][a]:7.1%}   " + ", ".join(f"{t} {c:.0%}" for c, t in took))
     print(f"label accuracy {r['accuracy']:.1%} (the most frequent true action: {r['majority_true_share']:.1%}); "
           f"label = agent's greedy action in {r['labels_equal_agent_greedy']:.1%}; agent's greedy action = expert's "
           f"in {r['agent_greedy_equals_expert']:.1%}; mean confidence {r['mean_confidence']:.2f}")

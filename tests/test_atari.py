@@ -7,7 +7,7 @@ pytest.importorskip("ale_py")
 from torchrl.collectors import Collector  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
-from torchrl_hybrid.envs.atari import ATARI_GAMES, AtariEnv  # noqa: E402
+from torchrl_hybrid.envs.atari import ATARI_GAMES, AtariEnv, action_names  # noqa: E402
 from torchrl_hybrid.modules import AtariEncoder, DualInverseDynamics, make_atari_actor_critic  # noqa: E402
 from torchrl_hybrid.objectives import DualInverseDynamicsLoss  # noqa: E402
 
@@ -58,12 +58,16 @@ def test_every_paper_game_loads_and_steps(game):
     env = AtariEnv(game, 2, num_threads=1)
     td = env.rollout(3)
     assert td["observation"].shape == (2, 3, 4, 84, 84)
+    names = action_names(game)  # one name per action the env takes, in its order
+    assert len(names) == env.n_actions and names[0] == "NOOP" and len(set(names)) == len(names)
     env.close()
 
 
 def test_unknown_game_is_refused():
     with pytest.raises(ValueError, match=r"unknown Atari game 'NotAGame'; ale-py .* has: .*MontezumaRevenge.*Pong"):
         AtariEnv("NotAGame", 1)
+    with pytest.raises(ValueError, match=r"unknown Atari game 'NotAGame'; ale-py has: .*Pong"):
+        action_names("NotAGame")
 
 
 def test_shared_encoder_inverse_model_trains_on_collected_atari_transitions():
@@ -596,6 +600,11 @@ def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_
     assert r["accuracy"] == pytest.approx(float((want == demos["expert_action"]).float().mean()))
     assert r["labels_equal_agent_greedy"] == pytest.approx(float((want == greedy).float().mean()))
     assert sum(r["share_true"]) == pytest.approx(1.0) and 1 / 6 <= r["mean_confidence"] <= 1
+    assert r["action_names"] == ["NOOP", "FIRE", "RIGHT", "LEFT", "RIGHTFIRE", "LEFTFIRE"]
+    conf = torch.tensor(r["confusion"])  # [true, label]: its margins are the two shares, its trace the accuracy
+    assert conf.sum(1).tolist() == pytest.approx(r["share_true"], abs=1e-6)
+    assert conf.sum(0).tolist() == pytest.approx(r["share_labels"], abs=1e-6)
+    assert float(conf.trace()) == pytest.approx(r["accuracy"], abs=1e-6)
     kept = [g["kept"] for g in r["confidence_gate"].values()]
     assert kept == sorted(kept, reverse=True) and all(0 <= k <= 1 for k in kept)
     mod.plot(r, tmp_path / "labels.png")

@@ -18,7 +18,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-__all__ = ["ATARI_GAMES", "AtariEnv"]
+__all__ = ["ATARI_GAMES", "AtariEnv", "action_names"]
 
 #: the paper's eight games
 ATARI_GAMES = ("Alien", "BeamRider", "Breakout", "MsPacman", "Pong", "Qbert", "Seaquest", "SpaceInvaders")
@@ -32,6 +32,23 @@ def _rom_name(game: str) -> str:
             out.append("_")
         out.append(ch.lower())
     return "".join(out)
+
+
+def action_names(game: str) -> list[str]:
+    """The names of ``game``'s actions in the order :class:`AtariEnv` numbers them (ALE's
+    minimal action set), e.g. ``["NOOP", "FIRE", "RIGHT", "LEFT"]`` for Breakout."""
+    try:
+        from ale_py import ALEInterface, LoggerMode, roms
+    except ImportError as err:  # pragma: no cover - ale-py is the atari extra
+        raise ImportError("Atari needs ale-py: pip install 'torchrl-hybrid[atari]'") from err
+    known = roms.get_all_rom_ids()
+    if _rom_name(game) not in known:
+        names = ", ".join(sorted("".join(w.capitalize() for w in r.split("_")) for r in known))
+        raise ValueError(f"unknown Atari game {game!r}; ale-py has: {names}")
+    ALEInterface.setLoggerMode(LoggerMode.Error)  # no ROM banner on stderr (a process-wide ALE setting)
+    ale = ALEInterface()
+    ale.loadROM(roms.get_rom_path(_rom_name(game)))
+    return [a.name for a in ale.getMinimalActionSet()]
 
 
 class AtariEnv(EnvBase):
