@@ -359,7 +359,8 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     md = (tmp_path / "Pong" / "summary.md").read_text()
     assert "| hybrid_dual | 1 |" in md and "too few seeds (0 vs 0" in md and "along the run" in md  # no episode ended in 256 frames
     rows = (tmp_path / "Pong" / "curves.csv").read_text().splitlines()
-    assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy_expert,idm_accuracy,entropy,loss_bc"
+    assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy_expert,idm_accuracy,entropy,loss_bc,grad_norm"
+    assert all(r.split(",")[-1] for r in rows[1:])  # every update logs its gradient norm
     assert len(rows) == 1 + 2 * 3  # 3 logged points a run
     capsys.readouterr()
     run_compare(cfg)  # finished runs are not run again

@@ -276,7 +276,8 @@ def _load_run(d: Path, seed: int) -> dict:
         rows = [upgrade_accuracy_keys({k: float(v) if v not in ("", None) else math.nan for k, v in r.items()})
                 for r in csv.DictReader(f)]
     summary = upgrade_accuracy_keys(json.loads((d / "summary.json").read_text()))
-    return {"seed": seed, "rows": rows, "summary": summary}
+    config = json.loads((d / "config.json").read_text()) if (d / "config.json").exists() else {}
+    return {"seed": seed, "rows": rows, "summary": summary, "config": config}
 
 
 def load_runs(cfg: CompareConfig, game: str) -> dict[str, list[dict]]:
@@ -399,7 +400,8 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
     """Per game: ``curves.csv`` (every logged point of every run), ``summary.csv``
     (with each variant's AUC against ``a2c``: see :func:`_versus_reference`), the same
     table as ``summary.md``, and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin;
-    the inverse model's accuracy on demo pairs; the policy's entropy)."""
+    the inverse model's accuracy on demo pairs; the policy's entropy; the gradient norm of each
+    update before the clip, whose dashed line is ``optim.max_grad_norm``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -415,19 +417,20 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         with open(gdir / "curves.csv", "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(["variant", "seed", "frames", "episodes", "return_mean", IDM_ACCURACY_EXPERT, IDM_ACCURACY_AGENT,
-                        "entropy", "loss_bc"])
+                        "entropy", "loss_bc", "grad_norm"])
             for variant, rs in runs.items():
                 for r in rs:
                     for row in r["rows"]:
                         w.writerow([variant, r["seed"], int(row["frames"]), int(row.get("episodes", 0)),
                                     row.get("return_mean", math.nan), row.get(IDM_ACCURACY_EXPERT, ""),
-                                    row.get(IDM_ACCURACY_AGENT, ""), row.get("entropy", ""), row.get("loss_bc", "")])
+                                    row.get(IDM_ACCURACY_AGENT, ""), row.get("entropy", ""), row.get("loss_bc", ""),
+                                    row.get("grad_norm", "")])
         # the logged frames of the longest run; the window shrinks for short runs
         longest = max((r["rows"] for rs in runs.values() for r in rs), key=len)
         grid = np.array([row["frames"] for row in longest])
         win = min(window, int(grid[-1]))
         grid = grid[grid >= win]
-        fig, axes = plt.subplots(1, 3, figsize=(17, 4.2))
+        fig, axes = plt.subplots(1, 4, figsize=(22, 4.2))
         table = []
         # five points along the run (every 1M frames of a 5M run)
         marks = [int(grid[-1] * k / 5) for k in range(1, 6)]
@@ -459,13 +462,20 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             })
             _per_seed(axes[1], rs, IDM_ACCURACY_EXPERT, ci, variant)
             _per_seed(axes[2], rs, "entropy", ci, variant)
+            _per_seed(axes[3], rs, "grad_norm", ci, variant)
         axes[1].set_ylim(0, 1)
+        clips = {r["config"].get("optim", {}).get("max_grad_norm") for rs in runs.values() for r in rs} - {None}
+        for c in clips:  # the gradient is scaled down to this norm before each step (optim.max_grad_norm)
+            axes[3].axhline(c, color="k", ls="--", lw=1, label=f"clip {c:g}")
+        if any(ax_line.get_ydata().size for ax_line in axes[3].get_lines()):
+            axes[3].set_yscale("log")
         for ax, ylabel, title, loc in (
             (axes[0], f"episode score (raw), mean over last {win // 1000}k frames", f"{game}: hybrid vs A2C",
              "upper left"),
             (axes[1], "inferred = true expert action", "inverse-model accuracy on demo pairs", "lower right"),
             (axes[2], "policy entropy (nats) on the agent's batch", "policy entropy (BC collapse shows as ~0)",
              "center right"),
+            (axes[3], "gradient norm before the clip (all losses)", "gradient norm of each update", "upper left"),
         ):
             ax.set(xlabel="game frames", ylabel=ylabel, title=title)
             ax.grid(alpha=0.3)
