@@ -84,6 +84,7 @@ def test_shared_encoder_inverse_model_trains_on_collected_atari_transitions():
 
 # ---------------------------------------------------------------- the pipeline
 import json  # noqa: E402
+import math  # noqa: E402
 import os  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -612,3 +613,23 @@ def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_
     assert (tmp_path / "labels.png").stat().st_size > 10_000
     with pytest.raises(ValueError, match="a2c has none"):
         mod.load_hybrid(pong_demos / "expert" / "model.pt")
+
+
+def test_grad_norm_diagnostic_averages_the_logged_norms_per_window(tmp_path):
+    """benchmarks/atari_grad_norms.py: the mean logged grad_norm of each (lo, hi] frame window
+    and the run's clip; a window with no row is NaN, a log without grad_norm is refused."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("grad_norms", ROOT / "benchmarks" / "atari_grad_norms.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    d = tmp_path / "hybrid_dual_s0"
+    d.mkdir()
+    rows = [(40_000, 1.0), (80_000, 3.0), (120_000, 100.0), (240_000, 0.5), (1_000_000, 1.5)]
+    (d / "metrics.csv").write_text("frames,return_mean,grad_norm\n" + "".join(f"{f},0.0,{g}\n" for f, g in rows))
+    (d / "config.json").write_text(json.dumps({"optim": {"max_grad_norm": 0.5}}))
+    r = mod.grad_norms(d, windows=((0, 100_000), (200_000, 2_000_000), (2_500_000, 5_000_000)))
+    assert r["mean_grad_norm"][:2] == [2.0, 1.0] and math.isnan(r["mean_grad_norm"][2]) and r["clip"] == 0.5
+    (d / "metrics.csv").write_text("frames,return_mean\n40000,0.0\n")
+    with pytest.raises(ValueError, match="logs no grad_norm"):
+        mod.grad_norms(d)

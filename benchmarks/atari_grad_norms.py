@@ -1,0 +1,65 @@
+"""How large each run's gradient was before the clip, per stretch of the run: the logged
+``grad_norm`` (the norm of the summed losses' gradient over every parameter, before
+``optim.max_grad_norm`` scales it down) of finished comparison runs, averaged over frame windows.
+
+    python benchmarks/atari_grad_norms.py results/atari/compare_5m --games BeamRider Breakout Qbert
+
+In the hybrid agents the inverse model shares the CNN with actor and critic (the paper's
+architecture), so its loss and the BC term add to A2C's gradient. Where the sum is far above
+the clip (0.5 here) the whole update, A2C's part included, is scaled down to that norm, and
+RMSprop's per-parameter normaliser on the shared CNN is set by the larger terms. This prints
+the sizes side by side; it does not by itself show that they slow learning (a run with a
+smaller ``loss.idm_action_coeff`` or its own inverse-model CNN would).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+from pathlib import Path
+
+WINDOWS = ((0, 100_000), (200_000, 2_000_000), (2_500_000, 5_000_000))
+
+
+def grad_norms(run_dir: Path, windows=WINDOWS) -> dict:
+    """The mean ``grad_norm`` of ``run_dir/metrics.csv`` in each ``(lo, hi]`` frame window
+    (NaN where none was logged), with the run's clip (``optim.max_grad_norm``)."""
+    with open(run_dir / "metrics.csv") as f:
+        rows = [(float(r["frames"]), float(r["grad_norm"])) for r in csv.DictReader(f)
+                if r.get("grad_norm") not in (None, "")]
+    if not rows:
+        raise ValueError(f"{run_dir}/metrics.csv logs no grad_norm")
+    means = []
+    for lo, hi in windows:
+        xs = [g for fr, g in rows if lo < fr <= hi]
+        means.append(sum(xs) / len(xs) if xs else math.nan)
+    cfg = run_dir / "config.json"
+    clip = json.loads(cfg.read_text()).get("optim", {}).get("max_grad_norm") if cfg.exists() else None
+    return {"run": run_dir.name, "windows": [list(w) for w in windows], "mean_grad_norm": means, "clip": clip}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("out_dir", help="a comparison folder (recipes/atari_compare.py out_dir): <game>/<arm>_s<seed>/")
+    p.add_argument("--games", nargs="+", required=True)
+    p.add_argument("--json", default=None, help="write the result as JSON")
+    args = p.parse_args()
+    result = {}
+    head = "  ".join(f"{lo / 1e6:g}-{hi / 1e6:g}M" for lo, hi in WINDOWS)
+    for game in args.games:
+        runs = sorted(d for d in (Path(args.out_dir) / game).glob("*_s*") if (d / "summary.json").exists())
+        if not runs:
+            raise SystemExit(f"error: no finished run in {Path(args.out_dir) / game}")
+        print(f"{game}: mean gradient norm before the clip ({head})")
+        result[game] = []
+        for d in runs:
+            r = grad_norms(d)
+            result[game].append(r)
+            print(f"  {d.name:32s} " + "  ".join(f"{g:8.3f}" for g in r["mean_grad_norm"]) + f"   clip {r['clip']}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
