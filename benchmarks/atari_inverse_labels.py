@@ -26,7 +26,7 @@ import torch
 
 from torchrl_hybrid.data import EXPERT_ACTION_KEY, load_demos
 from torchrl_hybrid.envs.atari import action_names
-from torchrl_hybrid.modules import make_atari_actor_critic
+from torchrl_hybrid.modules import AtariEncoder, make_atari_actor_critic
 from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.run import make_inverse_model
 
@@ -35,7 +35,8 @@ CONFIDENCE_THRESHOLDS = (0.5, 0.6, 0.8, 0.9)
 
 
 def load_hybrid(path: str | Path):
-    """The actor and the inverse model of a hybrid run's ``model.pt`` (sharing one CNN, as trained)."""
+    """The actor and the inverse model of a hybrid run's ``model.pt`` (sharing one CNN, or each
+    with its own where the run had ``idm_encoder=own``: as trained)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"--model {path}: no such file (a model.pt written by train_atari)")
@@ -47,11 +48,12 @@ def load_hybrid(path: str | Path):
         raise ValueError(f"{path}: not the model.pt of an Atari run with an inverse model (a2c has none)")
     cfg = ckpt["config"]
     actor, _, encoder, _ = make_atari_actor_critic(ckpt["n_actions"])
-    idm = make_inverse_model(get_variant(cfg["variant"]).inverse_model, encoder, ckpt["n_actions"], d_state=cfg["d_state"], d=cfg["d"], rank=cfg["rank"],
-                             mlp_layers=cfg.get("mlp_layers", 2))
+    idm_encoder = AtariEncoder() if cfg.get("idm_encoder", "shared") == "own" else encoder  # as trained
+    idm = make_inverse_model(get_variant(cfg["variant"]).inverse_model, idm_encoder, ckpt["n_actions"],
+                             d_state=cfg["d_state"], d=cfg["d"], rank=cfg["rank"], mlp_layers=cfg.get("mlp_layers", 2))
     actor.load_state_dict(ckpt["actor"])
     idm.load_state_dict(ckpt["inverse_model"])
-    encoder.reuse_features = False  # every call here is a new batch
+    encoder.reuse_features = idm_encoder.reuse_features = False  # every call here is a new batch
     return actor.eval(), idm.eval(), ckpt
 
 

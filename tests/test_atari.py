@@ -576,9 +576,10 @@ def test_action_effect_diagnostic_counts_the_actions_s_and_next_s_tell_apart(tmp
         mod.action_classes("NotAGame", 1)
 
 
-def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_path):
+@pytest.mark.parametrize("idm_encoder", ["shared", "own"])
+def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_path, idm_encoder):
     """benchmarks/atari_inverse_labels.py rebuilds the actor and the inverse model (one shared
-    CNN) from model.pt and gives the labels the trained run's own modules give."""
+    CNN, or one each) from model.pt and gives the labels the trained run's own modules give."""
     import importlib.util
 
     from torchrl_hybrid.trainers.atari import build_atari
@@ -587,10 +588,11 @@ def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_
     spec = importlib.util.spec_from_file_location("inverse_labels", ROOT / "benchmarks" / "atari_inverse_labels.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    run = build_atari(tiny(tmp_path / "hybrid", variant="hybrid_dual", demo={"path": str(pong_demos / "demos")}))
+    run = build_atari(tiny(tmp_path / "hybrid", variant="hybrid_dual", demo={"path": str(pong_demos / "demos")},
+                           idm_encoder=idm_encoder))
     run.trainer.train()
     demos, _ = load_demos(pong_demos / "demos")
-    run.encoder.reuse_features = False
+    run.encoder.reuse_features = run.inverse_model.encoder.reuse_features = False
     with torch.no_grad():
         want = run.inverse_model.infer(demos["observation"], demos["next", "observation"])
         greedy = run.actor(demos.select("observation").clone())["logits"].argmax(-1)
@@ -633,3 +635,38 @@ def test_grad_norm_diagnostic_averages_the_logged_norms_per_window(tmp_path):
     (d / "metrics.csv").write_text("frames,return_mean\n40000,0.0\n")
     with pytest.raises(ValueError, match="logs no grad_norm"):
         mod.grad_norms(d)
+
+
+def test_inverse_model_with_its_own_cnn_leaves_the_policy_cnn_to_a2c(pong_demos, tmp_path):
+    """idm_encoder=own: the inverse model gets a CNN of its own (same architecture, separate
+    weights, in the optimiser once), its loss sends no gradient into the actor's CNN, and a run
+    trains and resumes with it; a checkpoint of the other kind is not resumed."""
+    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.trainers.run import finish_run
+
+    demo = {"path": str(pong_demos / "demos")}
+    run = build_atari(tiny(tmp_path / "own", variant="hybrid_dual", demo=demo, idm_encoder="own",
+                           logger={"checkpoint": True}))
+    shared = build_atari(tiny(tmp_path / "shared", variant="hybrid_dual", demo=demo))
+    assert shared.inverse_model.encoder is shared.encoder and run.inverse_model.encoder is not run.encoder
+    own_ids = {id(p) for p in run.inverse_model.encoder.parameters()}
+    assert own_ids.isdisjoint(id(p) for p in run.encoder.parameters())
+    ids = [id(p) for g in run.trainer.optimizer.param_groups for p in g["params"]]
+    assert len(ids) == len(set(ids)) and own_ids <= set(ids) and {id(p) for p in run.encoder.parameters()} <= set(ids)
+    finish_run(shared)
+    batch = next(iter(run.collector))
+    run.encoder.reuse_features = run.inverse_model.encoder.reuse_features = False
+    run.loss.inverse_dynamics_loss(batch)["loss_inverse"].backward()
+    assert all(p.grad is None or not p.grad.any() for p in run.encoder.parameters())
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in run.inverse_model.encoder.parameters())
+    run.trainer.optimizer.zero_grad()
+    run.encoder.reuse_features = run.inverse_model.encoder.reuse_features = True
+    run.trainer.train()
+    s = finish_run(run)
+    assert s["frames"] == 256 - 4 * batch.numel() and 0 <= s["idm_accuracy_expert"] <= 1  # less the batch taken above
+    assert json.loads((tmp_path / "own" / "config.json").read_text())["idm_encoder"] == "own"
+    with pytest.raises(ValueError, match="idm_encoder"):
+        build_atari(tiny(tmp_path / "own", variant="hybrid_dual", demo=demo, idm_encoder="shared", resume=True,
+                         total_frames=512, logger={"checkpoint": True}))
+    with pytest.raises(ValueError, match=r"idm_encoder='mine': choose one of \('shared', 'own'\)"):
+        tiny(tmp_path / "bad", idm_encoder="mine").validate()

@@ -40,6 +40,10 @@ ROBUST_ARMS: dict[str, dict] = {
     "hybrid_dual_ready": {"variant": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
     # soft labels whose weight falls to 0 over the first 2M frames after the switch-on
     "hybrid_dual_soft_anneal": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
+    # the same with the inverse model on a CNN of its own (AtariConfig.idm_encoder), so that its
+    # loss does not share the policy's gradient
+    "hybrid_dual_soft_anneal_own": {"variant": "hybrid_dual", "idm_encoder": "own",
+                                    "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
 }
 
 

@@ -24,6 +24,7 @@ from torchrl_hybrid.data import EXPERT_ACTION_KEY, CurriculumSampler, load_demos
 from torchrl_hybrid.envs.atari import AtariEnv
 from torchrl_hybrid.experts import load_expert, record_demos
 from torchrl_hybrid.modules import AtariEncoder, make_atari_actor_critic
+from torchrl_hybrid.modules.atari import orthogonal_init_
 from torchrl_hybrid.trainers.evaluation import evaluate_atari, inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import NextStateValueHook
 from torchrl_hybrid.trainers.hybrid import get_variant
@@ -132,6 +133,11 @@ class AtariConfig(RunConfig):
     # GPU) | max-autotune. Same numbers as off (tested); about as fast as off on a 2-core CPU
     # (benchmarks/atari_compile.py), not measured on a GPU yet
     compile: str = "off"
+    # shared = the paper: the inverse model reads the actor's and critic's CNN, so its loss trains
+    # that CNN too; own = OURS: the inverse model has a CNN of its own (same architecture and init),
+    # so its gradient does not mix with A2C's in the policy's CNN (the hybrids' gradient norm is
+    # several times A2C's: benchmarks/atari_grad_norms.py). Costs one more CNN pass per update.
+    idm_encoder: str = "shared"
     env: AtariEnvConfig = field(default_factory=AtariEnvConfig)
     collector: AtariCollectorConfig = field(default_factory=AtariCollectorConfig)
     demo: AtariDemoConfig = field(default_factory=AtariDemoConfig)
@@ -153,6 +159,9 @@ class AtariConfig(RunConfig):
             raise ValueError(f"mlp_layers must be >= 1, got {self.mlp_layers}")
         if self.compile not in AtariEncoder.COMPILE_MODES:
             raise ValueError(f"compile={self.compile!r}: choose one of {AtariEncoder.COMPILE_MODES}")
+        if self.idm_encoder not in IDM_ENCODERS:
+            raise ValueError(f"idm_encoder={self.idm_encoder!r}: choose one of {IDM_ENCODERS} "
+                             "(shared: the paper's one CNN; own: the inverse model's own CNN)")
         self.loss.validate()
         self.optim.validate()
         if self.loss.idm_forward_coeff > 0:
@@ -228,14 +237,31 @@ def _check_frame_stacks(demos, path: str, sample: int = 256) -> None:
                          "trajectories (random or damaged frames?)")
 
 
+#: where the inverse model's CNN comes from (AtariConfig.idm_encoder)
+IDM_ENCODERS = ("shared", "own")
+
+
+def make_inverse_encoder(cfg: AtariConfig) -> AtariEncoder:
+    """The inverse model's own CNN (``idm_encoder=own``): the actor's architecture, init and
+    compile mode, separate weights."""
+    encoder = AtariEncoder(channels_last=cfg.collector.backend != "ray")
+    if cfg.init == "orthogonal":
+        orthogonal_init_(encoder, math.sqrt(2))
+    if cfg.compile != "off":
+        encoder.compile_cnn(cfg.compile)
+    return encoder
+
+
 # a checkpoint is resumed only by a run that agrees on these (total_frames may grow; threads and device may change)
-_RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "mlp_layers", "init", "env", "demo", "loss", "optim")
+_RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "mlp_layers", "init", "idm_encoder", "env", "demo", "loss",
+                "optim")
 _RESUME_IGNORE = ("env.num_threads",)
 
 
 class AtariFamily(EnvFamily):
     """Atari in the one run assembly (:func:`~torchrl_hybrid.trainers.run.build_run`): the
-    paper's CNN shared by actor, critic and inverse model, the games on the CPU, demos
+    paper's CNN shared by actor, critic and inverse model (``idm_encoder=own``: the inverse
+    model's own), the games on the CPU, demos
     recorded by :func:`~torchrl_hybrid.experts.record_demos`."""
 
     name = "atari"
@@ -285,6 +311,8 @@ class AtariFamily(EnvFamily):
         actor, critic, encoder, policy = make_atari_actor_critic(setup.n_actions, encoder=encoder, init=cfg.init)
         if cfg.compile != "off":
             encoder.compile_cnn(cfg.compile)
+        if cfg.idm_encoder == "own":  # the inverse model's own CNN, built only for variants that have one
+            return Networks(actor, critic, lambda: make_inverse_encoder(cfg), policy, encoder)
         return Networks(actor, critic, lambda: encoder, policy, encoder)  # one CNN for all
 
     def collector(self, cfg: AtariConfig, setup: Setup, policy, device, total_steps: int):
