@@ -26,8 +26,10 @@ def grad_norms(run_dir: Path, windows=WINDOWS) -> dict:
     """The mean ``grad_norm`` of ``run_dir/metrics.csv`` in each ``(lo, hi]`` frame window
     (NaN where none was logged), with the run's clip (``optim.max_grad_norm``)."""
     with open(run_dir / "metrics.csv") as f:
-        rows = [(float(r["frames"]), float(r["grad_norm"])) for r in csv.DictReader(f)
-                if r.get("grad_norm") not in (None, "")]
+        table = list(csv.DictReader(f))
+    # one global clip logs grad_norm; optim.clip=per_group logs each group's: take the policy's
+    key = "grad_norm" if table and "grad_norm" in table[0] else "grad_norm_policy"
+    rows = [(float(r["frames"]), float(r[key])) for r in table if r.get(key) not in (None, "")]
     if not rows:
         raise ValueError(f"{run_dir}/metrics.csv logs no grad_norm")
     means = []
@@ -36,7 +38,8 @@ def grad_norms(run_dir: Path, windows=WINDOWS) -> dict:
         means.append(sum(xs) / len(xs) if xs else math.nan)
     cfg = run_dir / "config.json"
     clip = json.loads(cfg.read_text()).get("optim", {}).get("max_grad_norm") if cfg.exists() else None
-    return {"run": run_dir.name, "windows": [list(w) for w in windows], "mean_grad_norm": means, "clip": clip}
+    return {"run": run_dir.name, "key": key, "windows": [list(w) for w in windows], "mean_grad_norm": means,
+            "clip": clip}
 
 
 def main() -> None:
@@ -56,7 +59,8 @@ def main() -> None:
         for d in runs:
             r = grad_norms(d)
             result[game].append(r)
-            print(f"  {d.name:32s} " + "  ".join(f"{g:8.3f}" for g in r["mean_grad_norm"]) + f"   clip {r['clip']}")
+            print(f"  {d.name:32s} " + "  ".join(f"{g:8.3f}" for g in r["mean_grad_norm"]) + f"   clip {r['clip']}"
+                  + ("" if r["key"] == "grad_norm" else f" ({r['key']}: per-group clip)"))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2))
 

@@ -632,6 +632,9 @@ def test_grad_norm_diagnostic_averages_the_logged_norms_per_window(tmp_path):
     (d / "config.json").write_text(json.dumps({"optim": {"max_grad_norm": 0.5}}))
     r = mod.grad_norms(d, windows=((0, 100_000), (200_000, 2_000_000), (2_500_000, 5_000_000)))
     assert r["mean_grad_norm"][:2] == [2.0, 1.0] and math.isnan(r["mean_grad_norm"][2]) and r["clip"] == 0.5
+    # optim.clip=per_group logs each group's norm: the policy's is read
+    (d / "metrics.csv").write_text("frames,grad_norm_policy,grad_norm_inverse_model\n40000,0.25,9.0\n")
+    assert mod.grad_norms(d)["mean_grad_norm"][0] == 0.25 and mod.grad_norms(d)["key"] == "grad_norm_policy"
     (d / "metrics.csv").write_text("frames,return_mean\n40000,0.0\n")
     with pytest.raises(ValueError, match="logs no grad_norm"):
         mod.grad_norms(d)

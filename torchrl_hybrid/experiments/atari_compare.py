@@ -40,9 +40,10 @@ ROBUST_ARMS: dict[str, dict] = {
     "hybrid_dual_ready": {"variant": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
     # soft labels whose weight falls to 0 over the first 2M frames after the switch-on
     "hybrid_dual_soft_anneal": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
-    # the same with the inverse model on a CNN of its own (AtariConfig.idm_encoder), so that its
-    # loss does not share the policy's gradient
-    "hybrid_dual_soft_anneal_own": {"variant": "hybrid_dual", "idm_encoder": "own",
+    # the same with the inverse model on a CNN of its own (AtariConfig.idm_encoder) and each
+    # parameter group clipped on its own (optim.clip=per_group), so that the inverse model's
+    # gradient neither mixes with A2C's in the policy's CNN nor scales it down in a global clip
+    "hybrid_dual_soft_anneal_own": {"variant": "hybrid_dual", "idm_encoder": "own", "optim": {"clip": "per_group"},
                                     "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
 }
 
