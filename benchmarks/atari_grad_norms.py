@@ -19,6 +19,8 @@ import json
 import math
 from pathlib import Path
 
+from torchrl_hybrid.experiments.atari_compare import grad_norm_key
+
 WINDOWS = ((0, 100_000), (200_000, 2_000_000), (2_500_000, 5_000_000))
 
 
@@ -27,8 +29,7 @@ def grad_norms(run_dir: Path, windows=WINDOWS) -> dict:
     (NaN where none was logged), with the run's clip (``optim.max_grad_norm``)."""
     with open(run_dir / "metrics.csv") as f:
         table = list(csv.DictReader(f))
-    # one global clip logs grad_norm; optim.clip=per_group logs each group's: take the policy's
-    key = "grad_norm" if table and "grad_norm" in table[0] else "grad_norm_policy"
+    key = grad_norm_key(table[0] if table else {})  # per_group clip: the policy group's norm
     rows = [(float(r["frames"]), float(r[key])) for r in table if r.get(key) not in (None, "")]
     if not rows:
         raise ValueError(f"{run_dir}/metrics.csv logs no grad_norm")

@@ -285,6 +285,12 @@ def _load_run(d: Path, seed: int) -> dict:
     return {"seed": seed, "rows": rows, "summary": summary, "config": config}
 
 
+def grad_norm_key(columns) -> str:
+    """The metrics column of a run's gradient norm before the clip: ``grad_norm`` (one global
+    clip) or, for ``optim.clip=per_group``, the policy group's ``grad_norm_policy``."""
+    return "grad_norm" if "grad_norm" in columns else "grad_norm_policy"
+
+
 def load_runs(cfg: CompareConfig, game: str) -> dict[str, list[dict]]:
     """variant -> the finished runs of ``game`` (metrics rows and summary), then the
     finished runs of ``cfg.baselines`` as ``"<variant> (<label>)"``."""
@@ -429,7 +435,7 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
                         w.writerow([variant, r["seed"], int(row["frames"]), int(row.get("episodes", 0)),
                                     row.get("return_mean", math.nan), row.get(IDM_ACCURACY_EXPERT, ""),
                                     row.get(IDM_ACCURACY_AGENT, ""), row.get("entropy", ""), row.get("loss_bc", ""),
-                                    row.get("grad_norm", "")])
+                                    row.get(grad_norm_key(row), "")])
         # the logged frames of the longest run; the window shrinks for short runs
         longest = max((r["rows"] for rs in runs.values() for r in rs), key=len)
         grid = np.array([row["frames"] for row in longest])
@@ -467,7 +473,9 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             })
             _per_seed(axes[1], rs, IDM_ACCURACY_EXPERT, ci, variant)
             _per_seed(axes[2], rs, "entropy", ci, variant)
-            _per_seed(axes[3], rs, "grad_norm", ci, variant)
+            for k, r in enumerate(rs):  # one column or the other, per run
+                _per_seed(axes[3], [r], grad_norm_key(r["rows"][0] if r["rows"] else {}), ci,
+                          variant if k == 0 else None)
         axes[1].set_ylim(0, 1)
         clips = {r["config"].get("optim", {}).get("max_grad_norm") for rs in runs.values() for r in rs} - {None}
         for c in clips:  # the gradient is scaled down to this norm before each step (optim.max_grad_norm)
@@ -480,7 +488,7 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             (axes[1], "inferred = true expert action", "inverse-model accuracy on demo pairs", "lower right"),
             (axes[2], "policy entropy (nats) on the agent's batch", "policy entropy (BC collapse shows as ~0)",
              "center right"),
-            (axes[3], "gradient norm before the clip (all losses)", "gradient norm of each update", "upper left"),
+            (axes[3], "gradient norm before the clip (per-group clip: the policy's)", "gradient norm of each update", "upper left"),
         ):
             ax.set(xlabel="game frames", ylabel=ylabel, title=title)
             ax.grid(alpha=0.3)
