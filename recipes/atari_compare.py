@@ -1,5 +1,6 @@
 """hybrid_dual vs a2c (or any variants) on several Atari games and seeds, then one
-curve file, figure and summary table per game under ``out_dir/<game>/``.
+curve file, figure and summary table per game under ``out_dir/<game>/``, and one figure of
+every game analysed in ``out_dir`` so far (``out_dir/overview.png``).
 
     python recipes/atari_expert.py env.game=Pong out_dir=experts/pong
     python recipes/atari_demos.py expert=experts/pong/model.pt out=demos/pong
@@ -29,7 +30,8 @@ def main(cfg: DictConfig) -> None:
     except (ValueError, TypeError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
-    print(f"\nresults: {raw['out_dir']}/<game>/comparison.png, curves.csv, summary.csv, summary.md")
+    print(f"\nresults: {raw['out_dir']}/<game>/comparison.png, curves.csv, summary.csv, summary.md; "
+          f"{raw['out_dir']}/overview.png (every game)")
 
 
 if __name__ == "__main__":

@@ -349,7 +349,9 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     cfg = CompareConfig(games=["Pong"], variants=["a2c", "hybrid_dual"], seeds=[0], total_frames=256,
                         out_dir=str(tmp_path), demos={"Pong": str(pong_demos / "demos")}, workers=1, base=base)
     (tmp_path / "summary.json").write_text(json.dumps({"Breakout": ["an earlier comparison's table"]}))
-    result = run_compare(cfg)
+    with pytest.warns(UserWarning, match="'Breakout' in summary.json is not a comparison table"):
+        result = run_compare(cfg)
+    assert (tmp_path / "overview.png").stat().st_size > 0  # every game of the out_dir in one figure
     assert [t["variant"] for t in result["Pong"]] == ["a2c", "hybrid_dual"]
     # the out_dir's summary.json gains Pong and keeps the other game's table
     assert json.loads((tmp_path / "summary.json").read_text()) == {"Breakout": ["an earlier comparison's table"],
@@ -453,6 +455,32 @@ def test_comparison_states_faster_or_slower_than_a2c_only_with_3_seeds_each(tmp_
     table = [row("fast", [20.0, 21.0, 22.0])]
     _versus_reference(table)
     assert table[0]["verdict_vs_a2c"] == "" and "| – | – |" in _summary_markdown("Pong", table, 100_000)
+
+
+def test_overview_figure_draws_every_game_against_a2c(tmp_path):
+    import numpy as np
+
+    from torchrl_hybrid.experiments.atari_compare import _versus_reference, overview_figure
+
+    def row(variant, auc, final):
+        mean = lambda xs: float(np.nanmean(np.array(xs, float)))  # noqa: E731
+        return {"variant": variant, "seeds": len(auc), "auc_per_seed": auc, "auc_mean": mean(auc),
+                "auc_ci95": None, "final_per_seed": final, "final_mean": mean(final), "final_ci95": None}
+
+    # a2c listed last is drawn on top; a seed without a final score (None in summary.json) is no dot
+    breakout = [row("hybrid_dual", [8.0, 11.0, 2.0], [18.0, None, 19.0]), row("a2c", [20.0, 21.0, 17.0], [48.0, 45.0, 51.0])]
+    for t in breakout:
+        t["auc_ci95"] = [min(t["auc_per_seed"]), max(t["auc_per_seed"])]
+    _versus_reference(breakout)
+    summary = {"Breakout": breakout, "Pong": [row("hybrid_dual", [-20.0], [-19.0])],  # no a2c: drawn, no band
+               "Qbert": ["an older entry"]}
+    with pytest.warns(UserWarning, match="'Qbert' in summary.json is not a comparison table"):
+        drawn = overview_figure(summary, tmp_path / "o.png")
+    assert drawn == {"Breakout": ["a2c", "hybrid_dual"], "Pong": ["hybrid_dual"]}
+    assert (tmp_path / "o.png").stat().st_size > 0
+    with pytest.raises(ValueError, match="no comparison table"):
+        overview_figure({"Qbert": []}, tmp_path / "none.png")
+    assert not (tmp_path / "none.png").exists()
 
 
 def test_fused_collection_policy_equals_actor_and_critic():

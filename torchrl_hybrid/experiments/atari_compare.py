@@ -26,7 +26,8 @@ from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
-__all__ = ["CompareConfig", "ROBUST_ARMS", "SweepProgress", "run_compare", "analyse_compare", "load_runs"]
+__all__ = ["CompareConfig", "ROBUST_ARMS", "SweepProgress", "run_compare", "analyse_compare", "load_runs",
+           "overview_figure"]
 
 # Named arms: a variant plus AtariConfig overrides, listed in ``variants`` like a variant
 # and run in ``<out_dir>/<game>/<arm>_s<seed>``, so that the paper's agent, a robust
@@ -519,5 +520,89 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
     except json.JSONDecodeError:  # derived data: rewritten from the runs' own files
         warnings.warn(f"{path} is not valid JSON (truncated?); rewriting it with this comparison's games only")
         kept = {}
-    path.write_text(json.dumps({**kept, **result}, indent=2))
+    merged = {**kept, **result}
+    path.write_text(json.dumps(merged, indent=2))
+    if result:
+        overview_figure(merged, root / "overview.png")
     return result
+
+
+def _is_table(rows: Any) -> bool:
+    return isinstance(rows, list) and bool(rows) and all(
+        isinstance(t, dict) and {"variant", "auc_per_seed", "final_per_seed"} <= set(t) for t in rows)
+
+
+def overview_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[str, list[str]]:
+    """Every game of a comparison folder in one figure, from its ``summary.json``
+    (``{game: [row of summary.csv, ...]}``): a row of panels per game, AUC (mean score
+    over the run: higher = learned faster) on the left and final score on the right;
+    per arm, each seed as a dot and, with 3 or more seeds, the mean with its bootstrap 95 %
+    interval; ``a2c``'s mean and interval as a line and band, and each arm's verdict
+    against it (:func:`_versus_reference`) beside the AUC. A game whose entry is not
+    such a table (an older format, a hand edit) is left out with a warning. Returns
+    game -> the arms drawn, in drawing order (top to bottom)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    games = []
+    for game, rows in summary.items():
+        if _is_table(rows):
+            games.append(game)
+        else:
+            warnings.warn(f"overview: {game!r} in summary.json is not a comparison table; left out of the figure "
+                          "(rerun recipes/atari_compare.py analyse_only=true for it to rewrite the entry)")
+    if not games:
+        raise ValueError("overview: summary holds no comparison table (run recipes/atari_compare.py first)")
+    heights = [1 + len(summary[g]) for g in games]
+    fig, axes = plt.subplots(len(games), 2, figsize=(15, 0.55 * sum(heights) + 0.6 * len(games)),
+                             gridspec_kw={"height_ratios": heights}, squeeze=False)
+    # one colour per arm across games (a2c first)
+    names = list(dict.fromkeys([REFERENCE] + [t["variant"] for g in games for t in summary[g]]))
+    colour = {n: f"C{i % 10}" for i, n in enumerate(names)}
+    drawn: dict[str, list[str]] = {}
+    for (ax_auc, ax_final), game in zip(axes, games):
+        rows = summary[game]
+        ref = next((t for t in rows if t["variant"] == REFERENCE), None)
+        order = ([ref] if ref else []) + [t for t in rows if t is not ref]
+        drawn[game] = [t["variant"] for t in order]
+        y = np.arange(len(order))[::-1]  # the first arm (a2c) on top
+        for ax, key in ((ax_auc, "auc"), (ax_final, "final")):
+            if ref is not None:
+                ax.axvline(ref[f"{key}_mean"], color=colour[REFERENCE], lw=1.5, zorder=1)
+                if ref.get(f"{key}_ci95"):
+                    ax.axvspan(*ref[f"{key}_ci95"], color=colour[REFERENCE], alpha=0.15, lw=0, zorder=0)
+            for yi, t in zip(y, order):
+                c = colour[t["variant"]]
+                seeds = np.array([x if x is not None else math.nan for x in t[f"{key}_per_seed"]], float)
+                ax.plot(seeds, np.full(len(seeds), yi), "o", color=c, ms=5, alpha=0.6, mfc="none")
+                interval = t.get(f"{key}_ci95")
+                if interval:
+                    m = t[f"{key}_mean"]
+                    ax.errorbar([m], [yi], xerr=[[m - interval[0]], [interval[1] - m]], fmt="D", color=c,
+                                ms=7, capsize=4, lw=2)
+                elif np.isfinite(seeds).any():
+                    ax.plot([np.nanmean(seeds)], [yi], "D", color=c, ms=7, mfc="white")
+            ax.set_yticks(y, [f"{t['variant']} ({t.get('seeds', len(t[f'{key}_per_seed']))})" for t in order])
+            ax.set_ylim(-0.7, len(order) - 0.3)
+            ax.grid(axis="x", alpha=0.3)
+        for yi, t in zip(y, order):
+            if t is not ref and t.get("verdict_vs_a2c"):
+                verdict = t["verdict_vs_a2c"]
+                text = verdict if verdict in ("faster", "slower", "not distinguishable") else "< 3 seeds"
+                if t.get("auc_vs_a2c_p") is not None:
+                    text += f" (p = {t['auc_vs_a2c_p']:.2f})"
+                ax_auc.annotate(text, (1.0, yi), xycoords=("axes fraction", "data"), xytext=(4, 0),
+                                textcoords="offset points", va="center", fontsize=8,
+                                color={"faster": "green", "slower": "firebrick"}.get(verdict, "0.35"))
+        ax_auc.set_title(f"{game}: AUC (mean score over the run; higher = learned faster)", fontsize=10)
+        ax_final.set_title(f"{game}: final score (last 200k frames)", fontsize=10)
+    fig.text(0.01, 0.003, "Raw episode score, mean over the last 200k game frames. Dots: seeds; diamond: mean "
+             "(filled, with its bootstrap 95 % interval, where 3 or more seeds); line and band: a2c's mean and "
+             "interval.\nBeside the AUC: the arm's verdict against a2c (interval of the AUC difference, "
+             "permutation p). (n) = seeds.", fontsize=8, va="bottom")
+    fig.tight_layout(rect=(0, 0.035, 1, 1), w_pad=9)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return drawn
