@@ -374,6 +374,12 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     assert [t["variant"] for t in run_compare(only)["Pong"]] == ["a2c", "hybrid_dual"]
     assert "1 run(s) not finished, left out: Pong/hybrid_dual_soft_s0" in capsys.readouterr().out
     assert not (tmp_path / "Pong" / "hybrid_dual_soft_s0").exists()
+    # an analysis (or a sweep) of some arms keeps the folder's other finished runs in its tables and
+    # in summary.json, its own arms first (it used to rewrite them with its own runs only)
+    some = CompareConfig(games=["Pong"], variants=["hybrid_dual"], seeds=[1], out_dir=str(tmp_path), analyse_only=True)
+    assert [t["variant"] for t in run_compare(some)["Pong"]] == ["hybrid_dual", "a2c"]
+    assert "| a2c | 1 |" in (tmp_path / "Pong" / "summary.md").read_text()
+    assert [t["variant"] for t in json.loads((tmp_path / "summary.json").read_text())["Pong"]] == ["hybrid_dual", "a2c"]
     with pytest.raises(FileNotFoundError, match="no finished run"):
         run_compare(CompareConfig(games=["Qbert"], variants=["a2c"], out_dir=str(tmp_path), analyse_only=True))
     with pytest.raises(ValueError, match=r"\+demos.Breakout=<folder>"):

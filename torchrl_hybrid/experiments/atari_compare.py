@@ -5,7 +5,8 @@ and a summary table per game.
 :func:`~torchrl_hybrid.trainers.atari.train_atari` run in ``<out_dir>/<game>/<variant>_s<seed>``;
 a run whose ``summary.json`` exists is not run again, and an unfinished one goes
 on from its last checkpoint (every tenth of its frames), so a sweep interrupted at
-the end of a session picks up where it stopped.
+the end of a session picks up where it stopped. The tables and figures describe every
+finished run in the folder, so sweeps of a few arms or seeds at a time add up.
 """
 from __future__ import annotations
 
@@ -292,20 +293,33 @@ def grad_norm_key(columns) -> str:
     return "grad_norm" if "grad_norm" in columns else "grad_norm_policy"
 
 
+def _finished_runs(game_dir: Path) -> dict[str, list[int]]:
+    """arm -> the seeds of the finished runs (``<arm>_s<seed>/summary.json``) in a game's folder."""
+    found: dict[str, list[int]] = {}
+    for d in sorted(game_dir.glob("*_s*")):
+        name, _, seed = d.name.rpartition("_s")
+        if name and seed.isdigit() and (d / "summary.json").exists():
+            found.setdefault(name, []).append(int(seed))
+    return {k: sorted(v) for k, v in found.items()}
+
+
 def load_runs(cfg: CompareConfig, game: str) -> dict[str, list[dict]]:
-    """variant -> the finished runs of ``game`` (metrics rows and summary), then the
-    finished runs of ``cfg.baselines`` as ``"<variant> (<label>)"``."""
+    """variant -> the finished runs of ``game`` (metrics rows and summary): every finished
+    run in ``<out_dir>/<game>``, ``cfg.variants`` first, then the folder's other arms (a
+    sweep of some arms or seeds into a folder thus keeps the others in its tables instead
+    of rewriting them with its own runs only); then the finished runs of ``cfg.baselines``
+    as ``"<variant> (<label>)"``."""
     out: dict[str, list[dict]] = {}
-    for variant in cfg.variants:
-        for seed in cfg.seeds:
+    found = _finished_runs(Path(cfg.out_dir) / game)
+    for variant in list(cfg.variants) + sorted(set(found) - set(cfg.variants)):
+        for seed in found.get(variant, []):
             d = _run_dir(cfg, game, variant, seed)
-            if (d / "summary.json").exists():
-                out.setdefault(f"{variant} ({cfg.label})" if cfg.label else variant, []).append(_load_run(d, seed))
+            out.setdefault(f"{variant} ({cfg.label})" if cfg.label else variant, []).append(_load_run(d, seed))
     for label, folder in cfg.baselines.items():
-        for d in sorted((Path(folder) / game).glob("*_s*")):
-            variant, _, seed = d.name.rpartition("_s")
-            if (d / "summary.json").exists() and seed.isdigit():
-                out.setdefault(f"{variant} ({label})", []).append(_load_run(d, int(seed)))
+        for variant, seeds in _finished_runs(Path(folder) / game).items():
+            for seed in seeds:
+                out.setdefault(f"{variant} ({label})", []).append(
+                    _load_run(Path(folder) / game / f"{variant}_s{seed}", seed))
     return out
 
 
@@ -409,7 +423,8 @@ def _summary_markdown(game: str, table: list[dict], window: int,
 
 
 def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]:
-    """Per game: ``curves.csv`` (every logged point of every run), ``summary.csv``
+    """Per game, over every finished run in ``<out_dir>/<game>`` (:func:`load_runs`) and the
+    baselines: ``curves.csv`` (every logged point of every run), ``summary.csv``
     (with each variant's AUC against ``a2c``: see :func:`_versus_reference`), the same
     table as ``summary.md``, and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin;
     the inverse model's accuracy on demo pairs; the policy's entropy; the gradient norm of each
