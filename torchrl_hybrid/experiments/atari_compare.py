@@ -612,8 +612,8 @@ def overview_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[st
                                 textcoords="offset points", va="center", fontsize=8,
                                 color={"faster": "green", "slower": "firebrick"}.get(verdict, "0.35"))
         ax_auc.set_title(f"{game}: AUC (mean score over the run; higher = learned faster)", fontsize=10)
-        ax_final.set_title(f"{game}: final score (last 200k frames)", fontsize=10)
-    fig.text(0.01, 0.003, "Raw episode score, mean over the last 200k game frames. Dots: seeds; diamond: mean "
+        ax_final.set_title(f"{game}: final score (end of the run)", fontsize=10)
+    fig.text(0.01, 0.003, "Raw episode score, mean over the analysis window (200k game frames by default). Dots: seeds; diamond: mean "
              "(filled, with its bootstrap 95 % interval, where 3 or more seeds); line and band: a2c's mean and "
              "interval.\nBeside the AUC: the arm's verdict against a2c (interval of the AUC difference, "
              "permutation p). (n) = seeds.", fontsize=8, va="bottom")
