@@ -88,12 +88,17 @@ def test_a_second_run_on_a_folder_in_use_is_refused(tmp_path):
     assert train_taxi(tiny(tmp_path / "run"))["frames"] == 640  # free again once the first run let go
 
 
-def test_taxi_resumes_and_refuses_changed_settings(tmp_path):
+def test_taxi_resumes_and_refuses_changed_settings(tmp_path, capsys):
     train_taxi(tiny(tmp_path))
     with pytest.raises(ValueError, match=r"other settings for \['optim.lr'\] \(optim.lr: 0.001 -> 0.01"):
         train_taxi(tiny(tmp_path, resume=True, total_frames=1280, optim={"lr": 0.01}))
-    s = train_taxi(tiny(tmp_path, resume=True, total_frames=1280))
+    capsys.readouterr()
+    logger = {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": True,
+              "backend": "csv"}
+    s = train_taxi(tiny(tmp_path, resume=True, total_frames=1280, logger=logger))
     assert s["frames"] == 1280 and s["resumed_from_frames"] == 640
+    bar = capsys.readouterr().err.split("continuing from 640 frames", 1)[1]
+    assert "| 1280/1280 [" in bar  # the progress bar goes on from where the run resumed (640), not from 0
     frames = [int(r.split(",")[0]) for r in (tmp_path / "metrics.csv").read_text().splitlines()[1:]]
     assert frames == sorted(set(frames)) and frames[-1] == 1280
 

@@ -300,5 +300,14 @@ def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str,
         read_json(ckpt / "manifest.json", "checkpoint manifest")
     check_memmap_folder(ckpt)
     trainer.load_from_file(ckpt)
-    print(f"resume: continuing from {trainer.collected_frames:,} frames ({ckpt})", file=sys.stderr)
-    return int(trainer.collected_frames)
+    frames = int(trainer.collected_frames)
+    print(f"resume: continuing from {frames:,} frames ({ckpt})", file=sys.stderr)
+
+    def start_bar_at_resumed_frames():  # TorchRL's Trainer.train() opens its bar at 0 even when resumed
+        bar = getattr(trainer, "_pbar", None)
+        if bar is not None and bar.n < frames:
+            bar.update(frames - bar.n)
+            bar.refresh()
+
+    trainer.register_op("setup", start_bar_at_resumed_frames)
+    return frames
