@@ -137,6 +137,11 @@ def test_batched_refuses_mixed_or_unsupported_configs(tmp_path):
         train_taxi_batched([tiny(tmp_path, demo={"rho": "curriculum"})])
     with pytest.raises(ValueError, match="gym"):
         train_taxi_batched([tiny(tmp_path, env={"backend": "gym"})])
+    # label options beyond the paper are not silently dropped by the fast path
+    with pytest.raises(ValueError, match=r"loss.bc_labels='soft', loss.bc_anneal_frames=100 need engine=torchrl"):
+        train_taxi_batched([tiny(tmp_path, loss={"bc_labels": "soft", "bc_anneal_frames": 100})])
+    with pytest.raises(ValueError, match=r"optim.clip='per_group' need engine=torchrl"):
+        train_taxi_batched([tiny(tmp_path, optim={"clip": "per_group"})])
 
 
 @pytest.mark.slow

@@ -294,6 +294,10 @@ def idm_loss_terms(agents: BatchedTabularAgents, s, a, s2, lc) -> dict[str, torc
     return out
 
 
+# label options of ExpertBCLoss beyond the paper, which bc_loss_terms does not implement
+_BEYOND_THE_PAPER = ("bc_labels", "bc_confidence", "bc_entropy_floor", "bc_ready_accuracy", "bc_anneal_frames")
+
+
 def bc_loss_terms(agents: BatchedTabularAgents, es, es2, mask, bc_coeff: float, true_labels=None):
     """``ExpertBCLoss`` (argmax labels) per agent: ``-bc_coeff * mean log pi(M(s, s') | s)``
     over the expert pairs ``(es, es2)`` ``[K, B]`` where ``mask`` is set (the pairs at the
@@ -367,6 +371,13 @@ def train_taxi_batched(
         raise ValueError("the batched fast path supports demo.rho = visited | uniform; use train_taxi for the curriculum")
     if cfg.loss.idm_forward_coeff > 0:
         raise ValueError("the batched fast path has no forward head; use train_taxi for loss.idm_forward_coeff > 0")
+    paper = type(cfg.loss)()
+    beyond = [f"loss.{k}={getattr(cfg.loss, k)!r}" for k in _BEYOND_THE_PAPER if getattr(cfg.loss, k) != getattr(paper, k)]
+    if cfg.optim.clip != "global":
+        beyond.append(f"optim.clip={cfg.optim.clip!r}")
+    if beyond:
+        raise ValueError(f"the batched fast path implements the paper's BC term (argmax labels, constant weight) and "
+                         f"one global gradient clip; {', '.join(beyond)} need engine=torchrl")
     o = cfg.optim
     extras = {k: getattr(o, k) for k in ("weight_decay", "momentum", "centered", "maximize") if getattr(o, k)}
     if extras:
