@@ -707,3 +707,16 @@ def test_inverse_model_with_its_own_cnn_leaves_the_policy_cnn_to_a2c(pong_demos,
                          total_frames=512, logger={"checkpoint": True}))
     with pytest.raises(ValueError, match=r"idm_encoder='mine': choose one of \('shared', 'own'\)"):
         tiny(tmp_path / "bad", idm_encoder="mine").validate()
+
+
+def test_every_named_arm_is_a_valid_atari_config():
+    from torchrl_hybrid.experiments.atari_compare import ROBUST_ARMS, CompareConfig
+
+    cfg = CompareConfig(variants=list(ROBUST_ARMS), analyse_only=True)
+    paper = atari_config({"variant": "hybrid_dual", "demo": {"path": "demos"}})
+    for name in ROBUST_ARMS:  # each a hybrid that differs from the paper's agent, with settings that validate
+        variant, overrides = cfg.arm(name)
+        built = atari_config({**overrides, "variant": variant, "demo": {"path": "demos"}}).validate()
+        assert variant == "hybrid_dual" and built != paper, name
+    ready = atari_config({**cfg.arm("hybrid_dual_ready_anneal")[1], "demo": {"path": "demos"}})
+    assert (ready.loss.bc_ready_accuracy, ready.loss.bc_anneal_frames) == (0.4, 2_000_000)

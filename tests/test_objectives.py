@@ -192,6 +192,21 @@ def test_inverse_model_ready_hook_switches_bc_on_at_the_held_out_accuracy():
     assert float(loss.bc_coeff) == 0.0
     other.load_state_dict(hook.state_dict())
     assert float(loss.bc_coeff) == 2.0 and other.on_at == 320
+    # with annealing: from the switch-on frame the weight falls linearly to 0 over anneal_frames
+    annealed = InverseModelReadyHook(loss, "bc_coeff", 2.0, accuracy=0.5, smoothing=1.0, anneal_frames=400)
+    annealed._trainer = FakeTrainer()
+    for frames, acc, coeff in [(100, 0.2, 0.0), (200, 0.9, 2.0), (300, 0.0, 1.5), (500, 0.0, 0.5), (700, 0.0, 0.0)]:
+        FakeTrainer.collected_frames = frames
+        annealed(1, TensorDict({"idm_accuracy": torch.tensor(acc)}, []))
+        assert float(loss.bc_coeff) == pytest.approx(coeff), frames
+    assert annealed.on_at == 200
+    resumed = InverseModelReadyHook(loss, "bc_coeff", 2.0, accuracy=0.5, anneal_frames=400)
+    resumed._trainer = FakeTrainer()
+    FakeTrainer.collected_frames = 300  # a checkpoint loaded at 300 frames: the weight where the schedule is
+    resumed.load_state_dict(annealed.state_dict())
+    assert float(loss.bc_coeff) == pytest.approx(1.5)
+    with pytest.raises(ValueError, match="anneal_frames must be >= 0"):
+        InverseModelReadyHook(loss, "bc_coeff", 2.0, accuracy=0.5, anneal_frames=-1)
 
 
 def test_delayed_coefficient_hook_anneals_the_bc_weight_linearly_to_zero():

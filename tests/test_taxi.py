@@ -181,8 +181,10 @@ def test_robust_bc_options_run_in_the_pipeline(tmp_path):
     with pytest.raises(ValueError, match=r"loss.bc_labels must be one of \('argmax', 'soft'\), got 'hard'"):
         train_taxi(tiny(tmp_path / "x", **{"loss.bc_labels": "hard"}))
     assert not (tmp_path / "x").exists()  # refused before anything is written
-    with pytest.raises(ValueError, match="bc_anneal_frames and loss.bc_ready_accuracy cannot both be set"):
-        train_taxi(tiny(tmp_path / "y", **{"loss.bc_anneal_frames": 100, "loss.bc_ready_accuracy": 0.2}))
+    # the readiness switch with annealing: on once ready, then falling to 0 over 320 frames
+    s = train_taxi(tiny(tmp_path / "y", **{"loss.bc_anneal_frames": 320, "loss.bc_ready_accuracy": 0.01}))
+    rows = list(csv.DictReader((tmp_path / "y" / "run" / "metrics.csv").open()))
+    assert s["frames"] == 640 and float(rows[-1]["loss_bc"]) == 0.0 and float(rows[1]["loss_bc"]) != 0.0
     # annealing: the BC weight in the log falls from bc_coeff at the switch-on to 0 by the end
     s = train_taxi(tiny(tmp_path / "z", **{"loss.bc_start_frames": 64, "loss.bc_anneal_frames": 320}))
     rows = list(csv.DictReader((tmp_path / "z" / "run" / "metrics.csv").open()))

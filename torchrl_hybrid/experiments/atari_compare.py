@@ -40,6 +40,9 @@ ROBUST_ARMS: dict[str, dict] = {
     "hybrid_dual_gate": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_confidence": 0.6}},
     "hybrid_dual_floor": {"variant": "hybrid_dual", "loss": {"bc_entropy_floor": 1.0}},
     "hybrid_dual_ready": {"variant": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
+    # the readiness switch, then the BC weight falling to 0 over the next 2M frames
+    "hybrid_dual_ready_anneal": {"variant": "hybrid_dual",
+                                 "loss": {"bc_ready_accuracy": 0.4, "bc_anneal_frames": 2_000_000}},
     # soft labels whose weight falls to 0 over the first 2M frames after the switch-on
     "hybrid_dual_soft_anneal": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
     # the same with the inverse model on a CNN of its own (AtariConfig.idm_encoder) and each

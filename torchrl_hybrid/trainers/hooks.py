@@ -150,7 +150,8 @@ class DelayedCoefficientHook(TrainerHookBase):
 
 class InverseModelReadyHook(TrainerHookBase):
     """Keeps a loss coefficient (the BC term's) at 0 until the inverse model is ready,
-    then sets it to ``value`` for good.
+    then sets it to ``value`` for good, or, with ``anneal_frames > 0``, lets it fall
+    linearly from ``value`` to 0 over that many frames after the switch-on.
 
     Ready means: the running mean (exponential, weight ``smoothing`` on the newest
     batch) of the inverse model's accuracy on the agent's own transitions reaches
@@ -167,30 +168,42 @@ class InverseModelReadyHook(TrainerHookBase):
         min_frames: frames before switching on, whatever the accuracy.
         smoothing: weight of the newest batch in the running mean.
         accuracy_key: the loss output holding the batch accuracy.
+        anneal_frames: frames over which the coefficient falls from ``value`` to 0 once
+            switched on (0: it stays at ``value``).
     """
 
     def __init__(self, loss: LossModule, name: str, value: float, accuracy: float, *, min_frames: int = 0,
-                 smoothing: float = 0.05, accuracy_key: str = "idm_accuracy"):
+                 smoothing: float = 0.05, accuracy_key: str = "idm_accuracy", anneal_frames: int = 0):
         _check_schedulable(loss, name)
         if not 0.0 < accuracy <= 1.0:
             raise ValueError(f"accuracy={accuracy} must be in (0, 1]")
+        if anneal_frames < 0:
+            raise ValueError(f"anneal_frames must be >= 0, got {anneal_frames}")
         self.loss, self.name, self.value = loss, name, float(value)
         self.accuracy, self.min_frames, self.smoothing, self.accuracy_key = (
             float(accuracy), int(min_frames), float(smoothing), accuracy_key)
+        self.anneal_frames = int(anneal_frames)
         self.running: float | None = None
         self.on_at: int | None = None  # frames when it switched on
         self._trainer: Trainer | None = None
         setattr(self.loss, self.name, 0.0)
 
+    def at(self, frames: int) -> float:
+        """The coefficient after ``frames`` collected frames (0 until switched on)."""
+        if self.on_at is None or frames < self.on_at:
+            return 0.0
+        if self.anneal_frames == 0:
+            return self.value
+        return self.value * max(0.0, 1.0 - (frames - self.on_at) / self.anneal_frames)
+
     def __call__(self, optim_steps: int, average_losses: TensorDictBase | None) -> dict[str, Any] | None:
-        if self.on_at is not None or average_losses is None or self.accuracy_key not in average_losses.keys():
-            return None
-        acc = float(average_losses.get(self.accuracy_key))
-        self.running = acc if self.running is None else (1 - self.smoothing) * self.running + self.smoothing * acc
-        frames = self._trainer.collected_frames
-        if self.running >= self.accuracy and frames >= self.min_frames:
-            self.on_at = int(frames)
-            setattr(self.loss, self.name, self.value)
+        frames = int(self._trainer.collected_frames)
+        if self.on_at is None and average_losses is not None and self.accuracy_key in average_losses.keys():
+            acc = float(average_losses.get(self.accuracy_key))
+            self.running = acc if self.running is None else (1 - self.smoothing) * self.running + self.smoothing * acc
+            if self.running >= self.accuracy and frames >= self.min_frames:
+                self.on_at = frames
+        setattr(self.loss, self.name, self.at(frames))
         return None
 
     def state_dict(self) -> dict[str, Any]:
@@ -201,7 +214,8 @@ class InverseModelReadyHook(TrainerHookBase):
         running, on_at = float(state_dict["running"]), int(state_dict["on_at"])
         self.running = None if running < 0 else running
         self.on_at = None if on_at < 0 else on_at
-        setattr(self.loss, self.name, self.value if self.on_at is not None else 0.0)
+        frames = self.on_at if self._trainer is None else int(self._trainer.collected_frames)
+        setattr(self.loss, self.name, self.at(frames) if self.on_at is not None else 0.0)
 
     def register(self, trainer: Trainer, name: str = "inverse_model_ready") -> None:
         self._trainer = trainer

@@ -233,7 +233,7 @@ def attach_demonstrations(
     inverse model's held-out accuracy on the agent's transitions reaches
     ``bc_ready_accuracy`` (and not before ``bc_start_frames``). With
     ``bc_anneal_frames > 0`` the BC weight then falls linearly to 0 over that many
-    frames (not with ``bc_ready_accuracy``). Returns the buffer."""
+    frames after the switch-on. Returns the buffer."""
     from torchrl_hybrid.data import CurriculumSampler, make_expert_buffer
     from torchrl_hybrid.trainers.hooks import (
         CurriculumHook,
@@ -246,14 +246,11 @@ def attach_demonstrations(
     ExpertBatchHook(buffer, batch_size).register(trainer)
     if isinstance(sampler, CurriculumSampler):
         CurriculumHook(sampler).register(trainer)
-    if bc_ready_accuracy > 0 and bc_anneal_frames > 0:
-        raise ValueError("bc_anneal_frames counts from bc_start_frames and cannot be combined with "
-                         "bc_ready_accuracy (whose switch-on frame is not known in advance); set one of them to 0")
     if bc_ready_accuracy > 0:
         if loss.inverse_dynamics_loss is None:
             raise ValueError("bc_ready_accuracy needs an inverse model (it measures the inverse model's accuracy)")
-        InverseModelReadyHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_ready_accuracy,
-                              min_frames=bc_start_frames).register(trainer)
+        InverseModelReadyHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_ready_accuracy, min_frames=bc_start_frames,
+                              anneal_frames=bc_anneal_frames).register(trainer)
     elif bc_start_frames > 0 or bc_anneal_frames > 0:
         DelayedCoefficientHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_start_frames,
                                anneal_frames=bc_anneal_frames).register(trainer)

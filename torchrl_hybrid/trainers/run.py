@@ -81,8 +81,9 @@ class LossConfig:
     # > 0: BC switches on once the inverse model's running accuracy on the agent's own transitions (each
     # batch measured before it is trained on; no expert labels) reaches this, and not before bc_start_frames
     bc_ready_accuracy: float = 0.0
-    # > 0: after switching on, the BC weight falls linearly from bc_coeff to 0 over this many frames (OURS:
-    # annealing, so that the RL signal takes over from labels that are only partly right; 0 = constant, the paper)
+    # > 0: after switching on (at bc_start_frames, or when ready with bc_ready_accuracy), the BC weight falls
+    # linearly from bc_coeff to 0 over this many frames (OURS: annealing, so that the RL signal takes over from
+    # labels that are only partly right; 0 = constant, the paper)
     bc_anneal_frames: int = 0
 
     def validate(self) -> None:
@@ -94,9 +95,6 @@ class LossConfig:
               f"loss.bc_ready_accuracy must be in [0, 1], got {self.bc_ready_accuracy}")
         _need(self.bc_start_frames >= 0, f"loss.bc_start_frames must be >= 0, got {self.bc_start_frames}")
         _need(self.bc_anneal_frames >= 0, f"loss.bc_anneal_frames must be >= 0, got {self.bc_anneal_frames}")
-        _need(not (self.bc_anneal_frames > 0 and self.bc_ready_accuracy > 0),
-              "loss.bc_anneal_frames and loss.bc_ready_accuracy cannot both be set (annealing counts from "
-              "bc_start_frames; the readiness switch-on frame is not known in advance): set one to 0")
 
     def loss_kwargs(self) -> dict[str, Any]:
         """The keyword arguments of :func:`~torchrl_hybrid.trainers.hybrid.make_hybrid_loss`."""
