@@ -461,6 +461,11 @@ def test_comparison_states_faster_or_slower_than_a2c_only_with_3_seeds_each(tmp_
     table = [row("fast", [20.0, 21.0, 22.0])]
     _versus_reference(table)
     assert table[0]["verdict_vs_a2c"] == "" and "| – | – |" in _summary_markdown("Pong", table, 100_000)
+    # a comparison drawn beside a baseline folder's a2c (label): that a2c is the reference
+    table = [row("hybrid_dual (soft)", [1.0, 2.0, 3.0]), row("a2c (paper settings)", [10.0, 11.0, 12.0]),
+             row("hybrid_dual (paper settings)", [20.0, 21.0, 22.0])]
+    _versus_reference(table)
+    assert [t["verdict_vs_a2c"] for t in table] == ["slower", "", "faster"]
 
 
 def test_overview_figure_draws_every_game_against_a2c(tmp_path):

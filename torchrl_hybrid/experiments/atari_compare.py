@@ -361,14 +361,21 @@ def _per_seed(ax, runs: list[dict], key: str, ci: int, variant: str) -> None:
 REFERENCE = "a2c"
 
 
+def _reference(rows: list[dict]) -> dict | None:
+    """The row every arm is compared with: ``a2c``, or where the comparison has none of its
+    own, the first ``a2c (<label>)`` of a baseline folder."""
+    return next((t for t in rows if t["variant"] == REFERENCE), None) or next(
+        (t for t in rows if t["variant"].startswith(f"{REFERENCE} (")), None)
+
+
 def _versus_reference(table: list[dict]) -> None:
-    """Adds to each row the difference of its mean AUC to ``a2c``'s, its bootstrap 95 %
+    """Adds to each row the difference of its mean AUC to ``a2c``'s (:func:`_reference`), its bootstrap 95 %
     interval and a two-sided permutation-test p-value (both need 3 or more finite seeds
     on each side: a percentile bootstrap of 2 values is no interval), and a verdict:
     ``faster`` / ``slower`` where the interval excludes 0, else ``not distinguishable``. With 3 seeds against 3 the smallest
     attainable p is 0.1 (all 20 splits enumerated), so p says how far from that the
     seeds are; the interval is the criterion."""
-    ref = next((t for t in table if t["variant"] == REFERENCE), None)
+    ref = _reference(table)
     for t in table:
         t.update({"auc_minus_a2c": None, "auc_minus_a2c_ci95": None, "auc_vs_a2c_p": None, "verdict_vs_a2c": ""})
         if ref is None or t is ref:
@@ -582,15 +589,15 @@ def overview_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[st
     drawn: dict[str, list[str]] = {}
     for (ax_auc, ax_final), game in zip(axes, games):
         rows = summary[game]
-        ref = next((t for t in rows if t["variant"] == REFERENCE), None)
+        ref = _reference(rows)
         order = ([ref] if ref else []) + [t for t in rows if t is not ref]
         drawn[game] = [t["variant"] for t in order]
         y = np.arange(len(order))[::-1]  # the first arm (a2c) on top
         for ax, key in ((ax_auc, "auc"), (ax_final, "final")):
             if ref is not None:
-                ax.axvline(ref[f"{key}_mean"], color=colour[REFERENCE], lw=1.5, zorder=1)
+                ax.axvline(ref[f"{key}_mean"], color=colour[ref["variant"]], lw=1.5, zorder=1)
                 if ref.get(f"{key}_ci95"):
-                    ax.axvspan(*ref[f"{key}_ci95"], color=colour[REFERENCE], alpha=0.15, lw=0, zorder=0)
+                    ax.axvspan(*ref[f"{key}_ci95"], color=colour[ref["variant"]], alpha=0.15, lw=0, zorder=0)
             for yi, t in zip(y, order):
                 c = colour[t["variant"]]
                 seeds = np.array([x if x is not None else math.nan for x in t[f"{key}_per_seed"]], float)

@@ -97,6 +97,12 @@ class CurriculumHook(TrainerHookBase):
         trainer.register_op("post_steps", self)
 
 
+def _annealed(value: float, frames_on: int, anneal_frames: int) -> float:
+    """``value`` after ``frames_on`` frames switched on: constant with ``anneal_frames=0``,
+    else falling linearly to 0 over ``anneal_frames``."""
+    return value if anneal_frames == 0 else value * max(0.0, 1.0 - frames_on / anneal_frames)
+
+
 class DelayedCoefficientHook(TrainerHookBase):
     """Keeps a loss coefficient at 0 until ``start_frames`` frames were collected,
     then sets it to ``value`` (the paper uses the BC term only after 100k frames);
@@ -123,11 +129,8 @@ class DelayedCoefficientHook(TrainerHookBase):
 
     def at(self, frames: int) -> float:
         """The coefficient after ``frames`` collected frames."""
-        if frames < self.start_frames:
-            return 0.0
-        if self.anneal_frames == 0:
-            return self.value
-        return self.value * max(0.0, 1.0 - (frames - self.start_frames) / self.anneal_frames)
+        return 0.0 if frames < self.start_frames else _annealed(self.value, frames - self.start_frames,
+                                                                 self.anneal_frames)
 
     def _set(self, value: float) -> None:
         setattr(self.loss, self.name, value)  # a schedulable buffer: updated in place
@@ -192,9 +195,7 @@ class InverseModelReadyHook(TrainerHookBase):
         """The coefficient after ``frames`` collected frames (0 until switched on)."""
         if self.on_at is None or frames < self.on_at:
             return 0.0
-        if self.anneal_frames == 0:
-            return self.value
-        return self.value * max(0.0, 1.0 - (frames - self.on_at) / self.anneal_frames)
+        return _annealed(self.value, frames - self.on_at, self.anneal_frames)
 
     def __call__(self, optim_steps: int, average_losses: TensorDictBase | None) -> dict[str, Any] | None:
         frames = int(self._trainer.collected_frames)
@@ -215,7 +216,7 @@ class InverseModelReadyHook(TrainerHookBase):
         self.running = None if running < 0 else running
         self.on_at = None if on_at < 0 else on_at
         frames = self.on_at if self._trainer is None else int(self._trainer.collected_frames)
-        setattr(self.loss, self.name, self.at(frames) if self.on_at is not None else 0.0)
+        setattr(self.loss, self.name, self.at(frames))
 
     def register(self, trainer: Trainer, name: str = "inverse_model_ready") -> None:
         self._trainer = trainer
