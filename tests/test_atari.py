@@ -725,3 +725,43 @@ def test_every_named_arm_is_a_valid_atari_config():
         assert variant == "hybrid_dual" and built != paper, name
     ready = atari_config({**cfg.arm("hybrid_dual_ready_anneal")[1], "demo": {"path": "demos"}})
     assert (ready.loss.bc_ready_accuracy, ready.loss.bc_anneal_frames) == (0.4, 2_000_000)
+
+
+def test_init_from_warm_starts_the_networks_and_counts_their_frames(tmp_path):
+    """init_from (train an expert longer): the actor and critic start from a finished run's
+    model.pt, in the modules the loss and optimiser train, and the frames add up."""
+    first = train_atari(tiny(tmp_path / "first", variant="a2c"))
+    saved = torch.load(tmp_path / "first" / "model.pt", weights_only=False)
+    assert saved["total_frames_seen"] == first["frames"] == 256
+    from torchrl_hybrid.trainers.atari import build_atari
+    run = build_atari(tiny(tmp_path / "warm", variant="a2c", seed=7, init_from=str(tmp_path / "first" / "model.pt")))
+    try:
+        for k, v in saved["actor"].items():
+            assert torch.equal(run.actor.state_dict()[k].cpu(), v), k
+        trained = [p for g in run.trainer.optimizer.param_groups for p in g["params"]]
+        for v in saved["critic"].values():  # the tensors the optimiser steps hold the saved values
+            assert any(p.shape == v.shape and torch.equal(p.detach().cpu(), v) for p in trained)
+        assert run.init_frames == 256
+        run.trainer.train()  # auto warm-up (optim.warmup_frames=None): lr rises over 100 updates of 32 frames
+        assert run.trainer.collected_frames == 256
+        assert [g["lr"] for g in run.trainer.optimizer.param_groups] == pytest.approx([7e-4 * 256 / 3200])  # a2c: one group
+    finally:
+        run.lock.close()
+        run.collector.shutdown()
+    s = train_atari(tiny(tmp_path / "warm2", variant="a2c", seed=7, init_from=str(tmp_path / "first" / "model.pt")))
+    assert s["frames"] == 256 and s["total_frames_seen"] == 512 and s["init_from"].endswith("model.pt")
+    again = torch.load(tmp_path / "warm2" / "model.pt", weights_only=False)["total_frames_seen"]
+    assert again == 512
+
+
+def test_init_from_refuses_another_game_or_a_missing_file(tmp_path):
+    train_atari(tiny(tmp_path / "pong", variant="a2c"))
+    with pytest.raises(ValueError, match=r"other settings for \['env.game'\].*'Pong' \(saved\) vs 'Breakout'"):
+        train_atari(tiny(tmp_path / "b", variant="a2c", env={"game": "Breakout"},
+                         init_from=str(tmp_path / "pong" / "model.pt")))
+    with pytest.raises(FileNotFoundError, match="init_from='nope.pt': no such file"):
+        train_atari(tiny(tmp_path / "c", variant="a2c", init_from="nope.pt"))
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="is not a model.pt written by this pipeline"):
+        train_atari(tiny(tmp_path / "d", variant="a2c", init_from=str(tmp_path / "junk.pt")))
+    assert not (tmp_path / "b" / "summary.json").exists()  # a refused run writes no results

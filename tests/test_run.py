@@ -161,3 +161,40 @@ def test_configure_process_quiets_torchrl_even_before_torchrl_is_imported():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "Initialized LazyTensorStorage" not in r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("warmup, expected", [(None, 1.0), (0, 1.0), (1280, 0.5)])
+def test_lr_warmup_raises_the_rate_linearly_then_holds_it(tmp_path, warmup, expected):
+    """optim.warmup_frames: the rate after 640 frames is 640/warmup of its value (capped at 1);
+    None without init_from means no warm-up (the authors' schedule)."""
+    run = build_taxi(tiny(tmp_path / "run", optim={"warmup_frames": warmup}))
+    try:
+        run.trainer.train()
+        lrs = [g["lr"] for g in run.trainer.optimizer.param_groups]
+        assert lrs == pytest.approx([run.cfg.optim.lr * expected] * len(lrs))
+    finally:
+        run.lock.close()
+        run.collector.shutdown()
+    with pytest.raises(ValueError, match="optim.warmup_frames must be >= 0"):
+        build_taxi(tiny(tmp_path / "bad", optim={"warmup_frames": -1}))
+
+
+def test_lr_warmup_hook_scale():
+    from torchrl_hybrid.trainers.hooks import LRWarmupHook
+    opt = torch.optim.RMSprop([torch.nn.Parameter(torch.zeros(1))], lr=0.1)
+    hook = LRWarmupHook(opt, 1000)
+    assert [hook.scale(f) for f in (0, 250, 1000, 5000)] == [0.0, 0.25, 1.0, 1.0]
+    with pytest.raises(ValueError, match="warmup_frames must be > 0"):
+        LRWarmupHook(opt, 0)
+
+
+def test_taxi_init_from_warm_starts_and_refuses_the_batched_engine(tmp_path):
+    first = train_taxi(tiny(tmp_path / "first"))
+    s = train_taxi(tiny(tmp_path / "warm", init_from=str(tmp_path / "first" / "model.pt")))
+    assert s["total_frames_seen"] == first["frames"] + s["frames"] == 1280
+    with pytest.raises(ValueError, match="init_from needs engine=torchrl"):
+        tiny(tmp_path / "b", engine="batched", init_from=str(tmp_path / "first" / "model.pt")).validate()
+    other = tiny(tmp_path / "fl", env={"env_id": "FrozenLake-v1", "kwargs": {"is_slippery": False}},
+                 init_from=str(tmp_path / "first" / "model.pt"))
+    with pytest.raises(ValueError, match=r"other settings for \['env.env_id', 'env.kwargs'\]"):
+        train_taxi(other)

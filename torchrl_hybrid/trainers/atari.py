@@ -267,6 +267,7 @@ class AtariFamily(EnvFamily):
     name = "atari"
     resume_keys = _RESUME_KEYS
     resume_ignore = _RESUME_IGNORE
+    init_keys = ("env.game",)  # the CNN is the same for every game; the action count and meaning are not
     checkpoints_per_run = 10
     return_key = ("next", "episode_score")
     loss_extra = MappingProxyType({"value_estimator_kwargs": {"skip_existing": True}})  # values come from NextStateValueHook

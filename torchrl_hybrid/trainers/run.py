@@ -26,7 +26,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Optional
 
 import torch
 from torchrl.record.loggers import get_logger
@@ -35,7 +35,7 @@ from torchrl.trainers import UpdateWeights
 
 from torchrl_hybrid.data import EXPERT_ACTION_KEY
 from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics
-from torchrl_hybrid.trainers.hooks import MetricsHook
+from torchrl_hybrid.trainers.hooks import LRWarmupHook, MetricsHook
 from torchrl_hybrid.trainers.hybrid import (
     Variant,
     attach_demonstrations,
@@ -50,11 +50,12 @@ from torchrl_hybrid.utils.files import prepare_out_dir
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["RunConfig", "LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig", "LOGGERS", "BC_LABELS", "EnvFamily", "Setup", "Networks", "Run",
-           "build_run", "train_run", "finish_run", "make_inverse_model"]
+           "build_run", "train_run", "finish_run", "make_inverse_model", "load_init_weights"]
 
 LOGGERS = ("csv", "tensorboard", "wandb", "none")
 BC_LABELS = ("argmax", "soft")
 CLIPS = ("global", "per_group")
+WARMUP_UPDATES = 100  # optim.warmup_frames=None with init_from: the lr warm-up lasts this many updates
 
 
 @dataclass
@@ -116,6 +117,9 @@ class OptimConfig(RMSpropConfig):
     # global = one clip over all parameters (TorchRL's default stepper);
     # per_group = policy and inverse model clipped separately (OURS, optional)
     clip: str = "global"
+    # lr rises linearly from 0 over this many frames (LRWarmupHook); None = auto: 100 updates' frames with
+    # init_from (a fresh RMSprop's first steps on trained weights are up to 10x lr), else 0 (the authors': none)
+    warmup_frames: Optional[int] = None
 
     def make(self, params) -> torch.optim.Optimizer:
         """The optimiser over ``params`` (e.g. :func:`~torchrl_hybrid.trainers.hybrid.param_groups`)."""
@@ -125,6 +129,8 @@ class OptimConfig(RMSpropConfig):
 
     def validate(self) -> None:
         _need(self.lr > 0, f"optim.lr must be > 0, got {self.lr}")
+        _need(self.warmup_frames is None or self.warmup_frames >= 0,
+              f"optim.warmup_frames must be >= 0 (or None: auto), got {self.warmup_frames}")
         _need(self.clip in CLIPS, f"optim.clip must be one of {CLIPS}, got {self.clip!r}")
         _need(self._target_ == "torch.optim.RMSprop",
               f"optim._target_={self._target_!r}: the agent's optimiser is torch.optim.RMSprop (the paper's); "
@@ -179,6 +185,11 @@ class RunConfig:
     # continue the run in out_dir from its checkpoint/ (the settings must agree with its config.json;
     # raise total_frames to train a finished run longer)
     resume: bool = False
+    # warm start: the actor's and critic's weights (and the inverse model's, where both runs have one) from
+    # the model.pt of an earlier run of the same env, e.g. train an expert longer:
+    # init_from=results/atari/expert_pong_10m/model.pt. The optimiser starts fresh, frames count from 0
+    # (summary.json adds the frames the weights had already seen); a checkpoint that resume=true finds wins
+    init_from: str = ""
     # replace the run in out_dir (summary, model, curve, checkpoint); nothing else there is touched
     overwrite: bool = False
     demo: DemoConfig = field(default_factory=DemoConfig)
@@ -224,6 +235,7 @@ class EnvFamily:
     name = "env"
     resume_keys: tuple[str, ...] = ()   # a checkpoint is resumed only by a run agreeing on these
     resume_ignore: tuple[str, ...] = ()  # dotted names that may differ on resume (thread counts)
+    init_keys: tuple[str, ...] = ()  # dotted names an init_from model.pt must agree on (the env, the networks' shapes)
     checkpoints_per_run = 4
     return_key: Any = ("next", "episode_reward")
     pbar_keys: tuple[str, ...] = ("return_mean",)
@@ -307,6 +319,7 @@ class Run:
     resumed_from: int = 0
     lock: Any = None  # the out_dir lock (released when the run is finished or the process ends)
     train_time_s: float = 0.0
+    init_frames: int = 0  # frames the init_from weights had seen (0: a fresh start)
 
     @property
     def env(self):
@@ -326,6 +339,54 @@ def make_inverse_model(kind: str | None, encoder: torch.nn.Module, n_actions: in
     if kind == "mlp":
         return MLPInverseDynamics(encoder, n_actions, d_state=d_state, hidden=d, num_layers=mlp_layers)
     return None
+
+
+def _dotted(d: Mapping, name: str, default=None):
+    for part in name.split("."):
+        if not isinstance(d, Mapping) or part not in d:
+            return default
+        d = d[part]
+    return d
+
+
+def load_init_weights(path: str | Path, cfg, family: EnvFamily, actor: torch.nn.Module, critic: torch.nn.Module,
+                      inverse_model: torch.nn.Module | None = None) -> int:
+    """Warm start (``init_from``): loads the actor's and critic's weights, and the inverse
+    model's where this run and the saved one both have one of the same shape, from a
+    ``model.pt`` written by :func:`finish_run` for the same env (``family.init_keys`` must
+    agree). The optimiser is not touched. Returns the frames those weights had seen."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"init_from={str(path)!r}: no such file; pass the model.pt of a finished run "
+                                "(e.g. results/atari/expert_pong_10m/model.pt)")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # truncated, random bytes, another format
+        raise ValueError(f"init_from={path} is not a model.pt written by this pipeline ({type(err).__name__}: {err})") from None
+    need = ("actor", "critic", "config")
+    if not isinstance(ckpt, dict) or any(k not in ckpt for k in need):
+        have = sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt).__name__
+        raise ValueError(f"init_from={path} is not a model.pt written by this pipeline: it needs {list(need)}, it has {have}")
+    saved, now = ckpt["config"], dataclasses.asdict(cfg)
+    diff = [k for k in family.init_keys if _dotted(saved, k) != _dotted(now, k)]
+    if diff:
+        was = ", ".join(f"{k}: {_dotted(saved, k)!r} (saved) vs {_dotted(now, k)!r} (this run)" for k in diff)
+        raise ValueError(f"init_from={path} was trained with other settings for {diff} ({was}); "
+                         "warm-start from a run of the same env and networks")
+    for name, module in (("actor", actor), ("critic", critic)):
+        try:
+            module.load_state_dict(ckpt[name])
+        except RuntimeError as err:
+            raise ValueError(f"init_from={path}: its {name} does not fit this run's ({err})") from None
+    saved_idm = ckpt.get("inverse_model")
+    if inverse_model is not None and saved_idm is not None:
+        try:
+            inverse_model.load_state_dict(saved_idm)
+        except RuntimeError as err:
+            raise ValueError(f"init_from={path}: its inverse model does not fit this run's (another variant, rank or "
+                             f"idm_encoder?) ({err})") from None
+    frames = ckpt.get("total_frames_seen")  # older model.pt files: the frames their run was asked for
+    return int(frames if frames is not None else saved.get("total_frames", 0))
 
 
 def build_run(cfg, family: EnvFamily) -> Run:
@@ -364,6 +425,13 @@ def build_run(cfg, family: EnvFamily) -> Run:
         )
         run = Run(cfg, family, variant, setup, trainer, collector, nets.actor, nets.critic, nets.encoder, inverse_model,
                   policy, loss, None, out, device, 0, lock)
+        if cfg.init_from:
+            run.init_frames = load_init_weights(cfg.init_from, cfg, family, nets.actor, nets.critic, inverse_model)
+        warmup = cfg.optim.warmup_frames
+        if warmup is None:  # auto
+            warmup = WARMUP_UPDATES * frames_per_batch if cfg.init_from else 0
+        if warmup > 0:
+            LRWarmupHook(optimizer, warmup).register(trainer)
         family.register_hooks(run)
         if family.uses_workers(cfg):  # the workers' policy copies get the learner's weights after every batch
             UpdateWeights(collector, update_weights_interval=1).register(trainer)
@@ -408,6 +476,8 @@ def finish_run(run: Run) -> dict[str, Any]:
             **results.pop("head", {}), "variant": cfg.variant, "seed": cfg.seed, "frames": int(trainer.collected_frames),
             **results,
             "resumed_from_frames": run.resumed_from,
+            # the weights' whole history: init_from's frames, then this run's
+            "init_from": cfg.init_from or None, "total_frames_seen": run.init_frames + int(trainer.collected_frames),
             "train_time_s": round(train_time, 2),  # this piece only, when resumed
             "frames_per_s": round((trainer.collected_frames - run.resumed_from) / train_time, 1),
             "config": dataclasses.asdict(cfg),
@@ -415,7 +485,8 @@ def finish_run(run: Run) -> dict[str, Any]:
         (run.out / "summary.json").write_text(json.dumps(summary, indent=2))
         torch.save({"actor": run.actor.state_dict(), "critic": run.critic.state_dict(),
                     "inverse_model": None if run.inverse_model is None else run.inverse_model.state_dict(),
-                    **model_extra, "config": dataclasses.asdict(cfg)}, run.out / "model.pt")
+                    **model_extra, "config": dataclasses.asdict(cfg),
+                    "total_frames_seen": run.init_frames + int(trainer.collected_frames)}, run.out / "model.pt")
         plot_learning_curve(run.metrics.rows, run.out / "learning_curve.png", title=run.family.title(cfg),
                             **run.family.plot_kwargs(run, summary))
     finally:

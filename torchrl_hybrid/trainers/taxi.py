@@ -170,6 +170,8 @@ class TaxiConfig(RunConfig):
         get_variant(self.variant)
         if self.engine == "batched" and self.resume:
             raise ValueError("resume=true needs engine=torchrl (the batched engine writes no checkpoint)")
+        if self.engine == "batched" and self.init_from:
+            raise ValueError("init_from needs engine=torchrl (the batched engine starts from fresh weights)")
         if resolve_device(self.device).type != "cpu" and self.engine == "batched" and self.device != "auto":
             raise ValueError(f"engine=batched runs on the CPU only; use device=cpu (or device=auto), "
                              f"or engine=torchrl for device={self.device}")
@@ -362,6 +364,7 @@ class GymFamily(EnvFamily):
 
     name = "gym"
     resume_keys = _RESUME_KEYS
+    init_keys = ("env.env_id", "env.kwargs", "encoder")
     checkpoints_per_run = 4
     pbar_keys = ("return_mean", "eval_return")
 
