@@ -752,6 +752,9 @@ def test_init_from_warm_starts_the_networks_and_counts_their_frames(tmp_path):
     assert s["frames"] == 256 and s["total_frames_seen"] == 512 and s["init_from"].endswith("model.pt")
     again = torch.load(tmp_path / "warm2" / "model.pt", weights_only=False)["total_frames_seen"]
     assert again == 512
+    meta = record_demos(tmp_path / "warm2" / "model.pt", tmp_path / "demos", num_trajectories=1, num_envs=1,
+                        max_steps=4, progress=False)
+    assert meta["expert_frames"] == 512  # the weights' whole history, not this piece's 256
 
 
 def test_init_from_refuses_another_game_or_a_missing_file(tmp_path):

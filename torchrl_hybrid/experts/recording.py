@@ -135,7 +135,7 @@ def record_demos(
     lengths = [len(a) for a in acts]
     meta = {
         "game": game, "preprocessing": pre, "expert_checkpoint": str(Path(expert_path).resolve()),
-        "expert_frames": ckpt["config"]["total_frames"], "num_trajectories": len(trajs),
+        "expert_frames": ckpt.get("total_frames_seen", ckpt["config"]["total_frames"]), "num_trajectories": len(trajs),
         "returns": returns, "lengths": lengths, "ends": ends, "deterministic": deterministic, "seed": seed,
         "cut": {"life": "first life lost", "point": "first point lost (negative reward)",
                 "episode": "episode end"}[cut] + f", episode end or {max_steps} steps",
