@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
 __all__ = ["LAUNCHERS", "in_worker", "init_ray", "run_jobs"]
@@ -66,6 +68,32 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
     return True
 
 
+def _run_local(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, fresh_process: bool) -> Iterator[Any]:
+    """``workers`` spawned processes. A worker that dies (SIGKILL, the kernel's OOM killer)
+    stops the study with an error instead of a wait: ``multiprocessing.Pool`` loses the job
+    of a killed worker and waits for its result forever (an Atari sweep of three hybrid runs
+    side by side hung 80 min after the OOM killer took one of them); a
+    ``ProcessPoolExecutor`` reports the death (``BrokenProcessPool``) and stops its other
+    workers too, which resume from their checkpoints when the study is run again."""
+    ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_mark_worker,
+                             max_tasks_per_child=1 if fresh_process else None)
+    try:
+        futures = [ex.submit(fn, job) for job in jobs]
+        for fut in as_completed(futures):
+            try:
+                result = fut.result()
+            except BrokenProcessPool as err:
+                raise RuntimeError(
+                    f"a worker process died in the middle of a job (killed by a signal, often the out-of-memory "
+                    f"killer: {workers} jobs side by side may need more memory than this machine has); the "
+                    "study stops here and its other jobs were stopped too. Run the same command again, with "
+                    "fewer workers if memory was the cause: finished runs are kept and interrupted ones resume "
+                    "from their checkpoints") from err
+            yield result
+    finally:
+        ex.shutdown(wait=True, cancel_futures=True)
+
+
 def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "local", workers: int = 2,
              address: str | None = None, cpus_per_job: float = 1.0, max_retries: int = 2,
              fresh_process: bool = False) -> Iterator[Any]:
@@ -98,9 +126,7 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
         if workers == 1:
             yield from map(fn, jobs)
             return
-        with mp.get_context("spawn").Pool(workers, initializer=_mark_worker,
-                                          maxtasksperchild=1 if fresh_process else None) as pool:
-            yield from pool.imap_unordered(fn, jobs)
+        yield from _run_local(fn, jobs, workers, fresh_process)
         return
     ray = _ray()
     started_here = init_ray(address, num_cpus=int(math.ceil(workers * cpus_per_job)))
