@@ -72,6 +72,13 @@ def configurations(groups: Sequence[str]) -> dict[str, dict]:
 
 
 
+class _BarFeed:
+    """The ``queue`` of a job run in the sweep's own process: ``put(frames)`` moves the bar."""
+
+    def __init__(self, bar):
+        self.put = bar.update
+
+
 def _run_batch(args) -> tuple[str, list[dict]]:
     name, cfg_dicts, queue = args
     from torchrl_hybrid.trainers.batched import train_taxi_batched
@@ -153,24 +160,22 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
                 keep(name, summaries)
                 bar.update(len(summaries) * cfg.total_frames)
                 bar.set_postfix_str(f"last: {name}")
-        elif jobs:
-            ctx = mp.get_context("spawn")
-            with ctx.Manager() as manager, ctx.Pool(cfg.workers) as pool:
+        elif cfg.workers == 1:  # in this process: the job reports its frames straight to the bar
+            for name, summaries in run_jobs(_run_batch, [(n, d, _BarFeed(bar)) for n, d in jobs], workers=1):
+                keep(name, summaries)
+                bar.set_postfix_str(f"last: {name}")
+        elif jobs:  # worker processes report their frames through a queue, drained while they run
+            with mp.get_context("spawn").Manager() as manager:
                 queue = manager.Queue()
-                pending = pool.imap_unordered(_run_batch, [(n, d, queue) for n, d in jobs])
-                done = 0
-                while done < len(jobs):
-                    try:
-                        name, summaries = pending.next(timeout=0.5)
-                        keep(name, summaries)
-                        done += 1
-                        bar.set_postfix_str(f"last: {name}")
-                    except mp.TimeoutError:
-                        pass
+
+                def drain():
                     while not queue.empty():
                         bar.update(queue.get())
-                while not queue.empty():
-                    bar.update(queue.get())
+                for name, summaries in run_jobs(_run_batch, [(n, d, queue) for n, d in jobs], workers=cfg.workers,
+                                                poll=drain):
+                    keep(name, summaries)
+                    bar.set_postfix_str(f"last: {name}")
+                drain()
     wall = time.perf_counter() - t0
     meta = {"groups": list(cfg.groups), "seeds": cfg.seeds, "total_frames": cfg.total_frames, "out_dir": cfg.out_dir,
             "workers": cfg.workers, "wall_time_s": round(wall, 1), "base": cfg.base}

@@ -3,7 +3,8 @@
 Every study (``taxi_sweep``, ``atari_compare``, ``recipes/compare.py``) hands its jobs to
 :func:`run_jobs`, which yields each job's result as it finishes. With
 ``launcher="ray"`` each job is a Ray task: ``ray.init(address=...)`` joins an existing
-cluster, no address starts a local one on this machine. A job whose worker process
+cluster, no address starts a local one on this machine. A local worker process that
+dies stops the study with an error that says how to continue. On Ray, a job whose worker process
 dies (killed, out of memory, node lost) is started again by Ray up to
 ``max_retries`` times; the studies make that safe: results are keyed by run, finished
 runs are kept and an interrupted run resumes from its checkpoint. When the retries run
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
@@ -68,35 +69,45 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
     return True
 
 
-def _run_local(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, fresh_process: bool) -> Iterator[Any]:
+def _run_local(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, fresh_process: bool,
+               poll: Callable[[], None] | None) -> Iterator[Any]:
     """``workers`` spawned processes. A worker that dies (SIGKILL, the kernel's OOM killer)
     stops the study with an error instead of a wait: ``multiprocessing.Pool`` loses the job
     of a killed worker and waits for its result forever (an Atari sweep of three hybrid runs
     side by side hung 80 min after the OOM killer took one of them); a
     ``ProcessPoolExecutor`` reports the death (``BrokenProcessPool``) and stops its other
-    workers too, which resume from their checkpoints when the study is run again."""
+    workers too, which resume from their checkpoints when the study is run again. Workers
+    still busy when the caller stops early (an error, Ctrl-C) are terminated, as
+    ``Pool.__exit__`` did, not waited for."""
     ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_mark_worker,
                              max_tasks_per_child=1 if fresh_process else None)
+    pending = {ex.submit(fn, job) for job in jobs}
     try:
-        futures = [ex.submit(fn, job) for job in jobs]
-        for fut in as_completed(futures):
-            try:
-                result = fut.result()
-            except BrokenProcessPool as err:
-                raise RuntimeError(
-                    f"a worker process died in the middle of a job (killed by a signal, often the out-of-memory "
-                    f"killer: {workers} jobs side by side may need more memory than this machine has); the "
-                    "study stops here and its other jobs were stopped too. Run the same command again, with "
-                    "fewer workers if memory was the cause: finished runs are kept and interrupted ones resume "
-                    "from their checkpoints") from err
-            yield result
+        while pending:
+            done, pending = wait(pending, timeout=0.5 if poll else None, return_when=FIRST_COMPLETED)
+            if poll:
+                poll()
+            for fut in done:
+                try:
+                    result = fut.result()
+                except BrokenProcessPool as err:
+                    raise RuntimeError(
+                        f"a worker process died in the middle of a job (killed by a signal, often the out-of-memory "
+                        f"killer: {workers} jobs side by side may need more memory than this machine has); the "
+                        "study stops here and its other jobs were stopped too. Run the same command again, with "
+                        "fewer workers if memory was the cause: finished runs are kept and interrupted ones resume "
+                        "from their checkpoints") from err
+                yield result
     finally:
+        if pending:
+            for proc in list((getattr(ex, "_processes", None) or {}).values()):
+                proc.terminate()
         ex.shutdown(wait=True, cancel_futures=True)
 
 
 def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "local", workers: int = 2,
              address: str | None = None, cpus_per_job: float = 1.0, max_retries: int = 2,
-             fresh_process: bool = False) -> Iterator[Any]:
+             fresh_process: bool = False, poll: Callable[[], None] | None = None) -> Iterator[Any]:
     """Runs ``fn(job)`` for every job and yields the results in the order they finish.
 
     Args:
@@ -115,6 +126,11 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
             goes back to the OS before the next one starts (a worker that had finished one
             Atari hybrid run held 10-11 GB at 0.4M frames of its next one; it had held 4.9 GB
             at about 0.7M frames of its first).
+        poll: local, ``workers > 1``: called about every 0.5 s while the jobs run (e.g. to move a
+            progress bar from a queue the jobs write to).
+
+    A local worker process that dies in the middle of a job stops the study with a
+    ``RuntimeError`` that says how to continue (:func:`_run_local`).
     """
     if launcher not in LAUNCHERS:
         raise ValueError(f"launcher={launcher!r}: choose one of {LAUNCHERS}")
@@ -126,7 +142,7 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
         if workers == 1:
             yield from map(fn, jobs)
             return
-        yield from _run_local(fn, jobs, workers, fresh_process)
+        yield from _run_local(fn, jobs, workers, fresh_process, poll)
         return
     ray = _ray()
     started_here = init_ray(address, num_cpus=int(math.ceil(workers * cpus_per_job)))
