@@ -468,6 +468,72 @@ def test_comparison_states_faster_or_slower_than_a2c_only_with_3_seeds_each(tmp_
     assert [t["verdict_vs_a2c"] for t in table] == ["slower", "", "faster"]
 
 
+def test_each_named_arm_states_the_one_option_it_adds_to_its_base():
+    from torchrl_hybrid.experiments.atari_compare import ROBUST_ARMS, CompareConfig, option_text
+
+    cfg = CompareConfig(variants=list(ROBUST_ARMS), analyse_only=True).validate()
+    bases = cfg.bases()
+    assert set(bases) == set(ROBUST_ARMS)  # every robust arm is measured against the arm without its option
+    assert bases["hybrid_dual_gate"] == ("hybrid_dual_soft", "loss.bc_confidence=0.6")
+    assert bases["hybrid_dual_floor"] == ("hybrid_dual", "loss.bc_entropy_floor=1.0")
+    assert bases["hybrid_dual_ready_anneal"] == ("hybrid_dual_ready", "loss.bc_anneal_frames=2000000")
+    assert bases["hybrid_dual_soft_anneal_own"] == ("hybrid_dual_soft_anneal", "idm_encoder=own, optim.clip=per_group")
+    # base is the analysis' word, not a training setting: the run's overrides do not hold it
+    assert "base" not in cfg.arm("hybrid_dual_gate")[1]
+    assert option_text(("bc_dual", {"loss": {"bc_coeff": 2.0}}), ("hybrid_dual", {"loss": {"bc_labels": "soft"}})) \
+        == "variant=bc_dual, loss.bc_coeff=2.0, loss.bc_labels=default"
+    # an arm of one's own may name a base; a base that is no variant or arm is refused by name
+    mine = CompareConfig(variants=["half"], analyse_only=True,
+                         arms={"half": {"variant": "hybrid_dual", "base": "hybrid_dual_soft",
+                                        "loss": {"bc_labels": "soft", "bc_coeff": 0.5}}}).validate()
+    assert mine.bases()["half"] == ("hybrid_dual_soft", "loss.bc_coeff=0.5") and mine.arm("half")[1] == {
+        "loss": {"bc_labels": "soft", "bc_coeff": 0.5}}
+    for base in ("hybrid_dual_sofft", "half"):
+        with pytest.raises(ValueError, match=rf"arms.half.base='{base}': name the variant or arm"):
+            CompareConfig(variants=["half"], analyse_only=True,
+                          arms={"half": {"variant": "hybrid_dual", "base": base}}).validate()
+
+
+def test_option_effects_compare_each_arm_with_its_base_only_with_3_seeds_each():
+    from torchrl_hybrid.experiments.atari_compare import _summary_markdown, _versus_reference, option_effects
+
+    def row(variant, auc):
+        return {"variant": variant, "seeds": len(auc), "final_per_seed": auc, "final_mean": float(sum(auc) / len(auc)),
+                "final_ci95": None, "auc_per_seed": auc, "auc_mean": float(sum(auc) / len(auc)), "auc_ci95": None,
+                "idm_accuracy_expert": None}
+
+    bases = {"soft": ("paper", "loss.bc_labels=soft"), "gate": ("soft", "loss.bc_confidence=0.6"),
+             "floor": ("paper", "loss.bc_entropy_floor=1.0"), "anneal": ("soft", "loss.bc_anneal_frames=2"),
+             "ready": ("paper", "loss.bc_ready_accuracy=0.4"), "own": ("anneal", "idm_encoder=own")}
+    table = [row("a2c", [10.0, 11.0, 12.0]), row("paper", [1.0, 2.0, 3.0]), row("soft", [5.0, 6.0, 7.0]),
+             row("gate", [5.5, 6.2, 6.9]), row("floor", [0.0, 0.5, 1.0]), row("anneal", [8.0, 9.0]),
+             row("ready", [1.0, 2.0, float("nan")]),
+             row("soft (strong demos)", [1.0, 1.5, 2.0]), row("paper (strong demos)", [3.0, 3.5, 4.0])]
+    _versus_reference(table)
+    option_effects(table, bases)
+    by = {t["variant"]: t for t in table}
+    assert by["a2c"]["option"] == by["paper"]["option"] == "" and by["a2c"]["auc_minus_base"] is None
+    assert by["soft"]["option_effect"] == "raises the AUC" and by["soft"]["auc_minus_base"] == 4.0
+    assert by["soft"]["option_base"] == "paper" and by["soft"]["auc_vs_base_p"] == pytest.approx(0.1)
+    assert by["gate"]["option_effect"] == "no measurable effect" and by["gate"]["auc_vs_base_p"] > 0.5
+    assert by["floor"]["option_effect"] == "lowers the AUC" and by["floor"]["auc_minus_base"] == -1.5
+    assert by["anneal"]["option_effect"].startswith("too few seeds (2 vs 3")
+    assert by["ready"]["option_effect"].startswith("too few seeds (2 vs 3")  # a seed without a score
+    # a labelled arm is compared with its base of the same label, not with the unlabelled one
+    strong = by["soft (strong demos)"]
+    assert strong["option_base"] == "paper (strong demos)" and strong["option_effect"] == "lowers the AUC"
+    assert strong["auc_minus_base"] == -2.0 and strong["verdict_vs_a2c"] == "slower"
+    # an arm whose base has no finished run says so
+    table = [row("own", [1.0, 2.0, 3.0])]
+    option_effects(table, bases)
+    assert table[0]["option_effect"] == "no finished anneal run here to compare with"
+    md = _summary_markdown("Breakout", [*[by[v] for v in ("a2c", "paper", "soft", "gate")]], 200_000)
+    lines = md.splitlines()
+    assert "| arm | option | without it (base) | AUC − base | effect |" in lines
+    assert "| soft | `loss.bc_labels=soft` | paper | +4.00 [+2.67, +5.33], p = 0.10 | raises the AUC |" in lines
+    assert not any(line.startswith("| a2c | `") for line in lines)  # rows without a base are not in it
+
+
 def test_overview_figure_draws_every_game_against_a2c(tmp_path):
     import numpy as np
 

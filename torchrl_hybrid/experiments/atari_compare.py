@@ -28,27 +28,32 @@ from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
 __all__ = ["CompareConfig", "ROBUST_ARMS", "SweepProgress", "run_compare", "analyse_compare", "load_runs",
-           "overview_figure"]
+           "option_effects", "option_text", "overview_figure"]
 
 # Named arms: a variant plus AtariConfig overrides, listed in ``variants`` like a variant
 # and run in ``<out_dir>/<game>/<arm>_s<seed>``, so that the paper's agent, a robust
 # variant and A2C run side by side in one comparison. These are the robust label
 # handling options of issue 9 (ExpertBCLoss, torchrl_hybrid/objectives/bc.py); ``CompareConfig.arms`` adds
-# more or replaces these.
+# more or replaces these. ``base`` names the arm (or variant) that this one differs from by one
+# option: the analysis measures that option's effect as this arm's AUC minus the base's
+# (:func:`option_effects`); it is not an AtariConfig setting.
 ROBUST_ARMS: dict[str, dict] = {
-    "hybrid_dual_soft": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft"}},
-    "hybrid_dual_gate": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_confidence": 0.6}},
-    "hybrid_dual_floor": {"variant": "hybrid_dual", "loss": {"bc_entropy_floor": 1.0}},
-    "hybrid_dual_ready": {"variant": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
+    "hybrid_dual_soft": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_labels": "soft"}},
+    "hybrid_dual_gate": {"variant": "hybrid_dual", "base": "hybrid_dual_soft",
+                         "loss": {"bc_labels": "soft", "bc_confidence": 0.6}},
+    "hybrid_dual_floor": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_entropy_floor": 1.0}},
+    "hybrid_dual_ready": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
     # the readiness switch, then the BC weight falling to 0 over the next 2M frames
-    "hybrid_dual_ready_anneal": {"variant": "hybrid_dual",
+    "hybrid_dual_ready_anneal": {"variant": "hybrid_dual", "base": "hybrid_dual_ready",
                                  "loss": {"bc_ready_accuracy": 0.4, "bc_anneal_frames": 2_000_000}},
     # soft labels whose weight falls to 0 over the first 2M frames after the switch-on
-    "hybrid_dual_soft_anneal": {"variant": "hybrid_dual", "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
+    "hybrid_dual_soft_anneal": {"variant": "hybrid_dual", "base": "hybrid_dual_soft",
+                                "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
     # the same with the inverse model on a CNN of its own (AtariConfig.idm_encoder) and each
     # parameter group clipped on its own (optim.clip=per_group), so that the inverse model's
     # gradient neither mixes with A2C's in the policy's CNN nor scales it down in a global clip
-    "hybrid_dual_soft_anneal_own": {"variant": "hybrid_dual", "idm_encoder": "own", "optim": {"clip": "per_group"},
+    "hybrid_dual_soft_anneal_own": {"variant": "hybrid_dual", "base": "hybrid_dual_soft_anneal",
+                                    "idm_encoder": "own", "optim": {"clip": "per_group"},
                                     "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
 }
 
@@ -60,7 +65,8 @@ class CompareConfig:
     ``baselines`` maps a label to another comparison's ``out_dir`` whose finished runs
     of the same games are drawn and tabulated beside these (as ``<variant> (<label>)``),
     without being run again. ``arms`` maps a name to ``{"variant": <variant>, **overrides}``
-    beside :data:`ROBUST_ARMS`; a name in ``variants`` that is not a variant is an arm."""
+    beside :data:`ROBUST_ARMS` (with an optional ``base: <arm or variant>``, the arm it adds
+    one option to: see :func:`option_effects`); a name in ``variants`` that is not a variant is an arm."""
 
     games: Sequence[str] = ("Pong", "Breakout")
     variants: Sequence[str] = ("a2c", "hybrid_dual")
@@ -105,8 +111,18 @@ class CompareConfig:
         """(the variant, the AtariConfig overrides) of a name in ``variants``."""
         if name in self.all_arms:
             spec = dict(self.all_arms[name])
+            spec.pop("base", None)
             return spec.pop("variant"), spec
         return name, {}
+
+    def bases(self) -> dict[str, tuple[str, str]]:
+        """arm -> (its ``base``, the option it adds to it as ``key=value`` text), for every
+        arm that names a base: the pairs :func:`option_effects` compares."""
+        out = {}
+        for name, spec in self.all_arms.items():
+            if spec.get("base"):
+                out[name] = (spec["base"], option_text(self.arm(name), self.arm(spec["base"])))
+        return out
 
     def validate(self) -> "CompareConfig":
         from torchrl_hybrid.trainers.atari import ATARI_VARIANTS
@@ -118,6 +134,11 @@ class CompareConfig:
             if not isinstance(spec, dict) or spec.get("variant") not in ATARI_VARIANTS:
                 raise ValueError(f"arms.{name} must be a mapping with variant: one of {list(ATARI_VARIANTS)} "
                                  f"(plus AtariConfig overrides), got {spec!r}")
+        for name, spec in self.all_arms.items():
+            base = spec.get("base")
+            if base is not None and (base == name or base not in set(ATARI_VARIANTS) | set(self.all_arms)):
+                raise ValueError(f"arms.{name}.base={base!r}: name the variant or arm this one adds an option to "
+                                 f"(one of {list(ATARI_VARIANTS)} or {[a for a in self.all_arms if a != name]})")
         bad = sorted(set(self.variants) - set(ATARI_VARIANTS) - set(self.all_arms))
         if bad:
             raise ValueError(f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)} "
@@ -140,6 +161,26 @@ class CompareConfig:
                     raise FileNotFoundError(f"demos for {g}: {self.demos[g]!r} holds no dataset "
                                             "(metadata.json); record it with recipes/atari_demos.py")
         return self
+
+
+def _flat(d: dict, prefix: str = "") -> dict[str, Any]:
+    out = {}
+    for k, v in d.items():
+        out.update(_flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
+
+
+def option_text(arm: tuple[str, dict], base: tuple[str, dict]) -> str:
+    """What ``arm`` sets that ``base`` does not, as ``key=value`` pairs (both given as
+    :meth:`CompareConfig.arm` returns them): e.g. ``loss.bc_confidence=0.6``. A setting
+    the base has and the arm lacks reads ``key=default``."""
+    (av, ao), (bv, bo) = arm, base
+    a, b = _flat(ao), _flat(bo)
+    if av != bv:
+        a, b = {"variant": av, **a}, {"variant": bv, **b}
+    parts = [f"{k}={v}" for k, v in a.items() if b.get(k, object()) != v]
+    parts += [f"{k}=default" for k in b if k not in a]
+    return ", ".join(parts) or "(same settings)"
 
 
 def _run_dir(cfg: CompareConfig, game: str, variant: str, seed: int) -> Path:
@@ -368,6 +409,22 @@ def _reference(rows: list[dict]) -> dict | None:
         (t for t in rows if t["variant"].startswith(f"{REFERENCE} (")), None)
 
 
+def _auc_test(a, b) -> dict | None:
+    """AUC per seed of two arms (NaN: a seed without a score): the difference of means,
+    its bootstrap 95 % interval and a two-sided permutation p, or None where either side
+    has fewer than 3 finite seeds (a percentile bootstrap of 2 values is no interval)."""
+    a, b = np.array(a, float), np.array(b, float)
+    a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+    if min(len(a), len(b)) < 3:
+        return None
+    d, lo, hi = mean_diff_ci(a, b)
+    return {"diff": round(d, 2), "ci95": [round(lo, 2), round(hi, 2)], "p": round(permutation_p(a, b), 3)}
+
+
+def _n_finite(xs) -> int:
+    return int(np.isfinite(np.array(xs, float)).sum())
+
+
 def _versus_reference(table: list[dict]) -> None:
     """Adds to each row the difference of its mean AUC to ``a2c``'s (:func:`_reference`), its bootstrap 95 %
     interval and a two-sided permutation-test p-value (both need 3 or more finite seeds
@@ -380,16 +437,52 @@ def _versus_reference(table: list[dict]) -> None:
         t.update({"auc_minus_a2c": None, "auc_minus_a2c_ci95": None, "auc_vs_a2c_p": None, "verdict_vs_a2c": ""})
         if ref is None or t is ref:
             continue
-        a = np.array(t["auc_per_seed"], float)
-        b = np.array(ref["auc_per_seed"], float)
-        a, b = a[np.isfinite(a)], b[np.isfinite(b)]
-        if min(len(a), len(b)) < 3:
-            t["verdict_vs_a2c"] = f"too few seeds ({len(a)} vs {len(b)} finished with a score; 3 each needed)"
+        test = _auc_test(t["auc_per_seed"], ref["auc_per_seed"])
+        if test is None:
+            t["verdict_vs_a2c"] = (f"too few seeds ({_n_finite(t['auc_per_seed'])} vs {_n_finite(ref['auc_per_seed'])}"
+                                   " finished with a score; 3 each needed)")
             continue
-        d, lo, hi = mean_diff_ci(a, b)
-        t.update({"auc_minus_a2c": round(d, 2), "auc_minus_a2c_ci95": [round(lo, 2), round(hi, 2)],
-                  "auc_vs_a2c_p": round(permutation_p(a, b), 3),
+        lo, hi = test["ci95"]
+        t.update({"auc_minus_a2c": test["diff"], "auc_minus_a2c_ci95": test["ci95"], "auc_vs_a2c_p": test["p"],
                   "verdict_vs_a2c": "faster" if lo > 0 else "slower" if hi < 0 else "not distinguishable"})
+
+
+def _split_label(name: str) -> tuple[str, str]:
+    """``"hybrid_dual_gate (soft demos)"`` -> ``("hybrid_dual_gate", " (soft demos)")``."""
+    arm, sep, label = name.partition(" (")
+    return arm, f"{sep}{label}"
+
+
+def option_effects(table: list[dict], bases: dict[str, tuple[str, str]]) -> None:
+    """The measured effect of each robust option: adds to each row whose arm names a base
+    (``bases``: arm -> (base, option text), :meth:`CompareConfig.bases`) and whose base is
+    in the table with the same label, the option (``option``), the base (``option_base``),
+    the difference of the mean AUCs, arm minus base, with its bootstrap 95 % interval and
+    permutation p (3 or more seeds each), and ``option_effect``: ``raises the AUC`` /
+    ``lowers the AUC`` where the interval excludes 0, else ``no measurable effect``, or
+    why there is no verdict. Rows without a base get empty fields."""
+    by_name = {t["variant"]: t for t in table}
+    for t in table:
+        t.update({"option": "", "option_base": "", "auc_minus_base": None, "auc_minus_base_ci95": None,
+                  "auc_vs_base_p": None, "option_effect": ""})
+        arm, label = _split_label(t["variant"])
+        if arm not in bases:
+            continue
+        base_arm, option = bases[arm]
+        base = by_name.get(f"{base_arm}{label}")
+        t.update({"option": option, "option_base": f"{base_arm}{label}"})
+        if base is None:
+            t["option_effect"] = f"no finished {base_arm}{label} run here to compare with"
+            continue
+        test = _auc_test(t["auc_per_seed"], base["auc_per_seed"])
+        if test is None:
+            t["option_effect"] = (f"too few seeds ({_n_finite(t['auc_per_seed'])} vs "
+                                  f"{_n_finite(base['auc_per_seed'])} finished with a score; 3 each needed)")
+            continue
+        lo, hi = test["ci95"]
+        t.update({"auc_minus_base": test["diff"], "auc_minus_base_ci95": test["ci95"], "auc_vs_base_p": test["p"],
+                  "option_effect": "raises the AUC" if lo > 0 else "lowers the AUC" if hi < 0
+                  else "no measurable effect"})
 
 
 def _summary_markdown(game: str, table: list[dict], window: int,
@@ -423,6 +516,16 @@ def _summary_markdown(game: str, table: list[dict], window: int,
                      f"{num(t['final_mean'])}{ci(t['final_ci95'])} | {seeds(t['auc_per_seed'])} | "
                      f"{num(t['auc_mean'])}{ci(t['auc_ci95'])} | {'–' if acc is None else f'{acc:.1%}'} | {diff} | "
                      f"{t['verdict_vs_a2c'] or '–'} |")
+    effects = [t for t in table if t.get("option")]
+    if effects:
+        lines += ["", "Effect of each option: the arm's AUC minus that of the arm without the option (its base), "
+                  "the difference's bootstrap 95 % interval and a permutation-test p:", "",
+                  "| arm | option | without it (base) | AUC − base | effect |", "|---|---|---|---|---|"]
+        for t in effects:
+            diff = ("–" if t["auc_minus_base"] is None else
+                    f"{t['auc_minus_base']:+.2f} [{t['auc_minus_base_ci95'][0]:+.2f}, "
+                    f"{t['auc_minus_base_ci95'][1]:+.2f}], p = {t['auc_vs_base_p']:.2f}")
+            lines.append(f"| {t['variant']} | `{t['option']}` | {t['option_base']} | {diff} | {t['option_effect']} |")
     if milestones:
         frames = next(iter(milestones.values()))[0]
         lines += ["", f"Mean score over seeds (last {window / 1000:g}k frames) along the run:", "",
@@ -435,7 +538,8 @@ def _summary_markdown(game: str, table: list[dict], window: int,
 def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]:
     """Per game, over every finished run in ``<out_dir>/<game>`` (:func:`load_runs`) and the
     baselines: ``curves.csv`` (every logged point of every run), ``summary.csv``
-    (with each variant's AUC against ``a2c``: see :func:`_versus_reference`), the same
+    (with each variant's AUC against ``a2c``, :func:`_versus_reference`, and each robust
+    option's effect, the arm's AUC against its base arm's, :func:`option_effects`), the same
     table as ``summary.md``, and ``comparison.png`` (mean score over the last ``window`` frames, seeds thin;
     the inverse model's accuracy on demo pairs; the policy's entropy; the gradient norm of each
     update before the clip, whose dashed line is ``optim.max_grad_norm``)."""
@@ -524,6 +628,7 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         fig.savefig(gdir / "comparison.png", dpi=110)
         plt.close(fig)
         _versus_reference(table)
+        option_effects(table, cfg.bases())
         with open(gdir / "summary.csv", "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(table[0]))
             w.writeheader()
@@ -536,7 +641,10 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
                   f"{t['final_per_seed']}  AUC {t['auc_mean']:7.2f}{ci_txt(t['auc_ci95'])} {t['auc_per_seed']}"
                   + (f"  IDM acc {t[IDM_ACCURACY_EXPERT]:.1%}" if t[IDM_ACCURACY_EXPERT] is not None else "")
                   + (f"  AUC - a2c {t['auc_minus_a2c']:+.2f}{ci_txt(t['auc_minus_a2c_ci95'])} p {t['auc_vs_a2c_p']:.2f}"
-                     f" ({t['verdict_vs_a2c']})" if t["auc_minus_a2c"] is not None else ""))
+                     f" ({t['verdict_vs_a2c']})" if t["auc_minus_a2c"] is not None else "")
+                  + (f"  [{t['option']}: AUC - {t['option_base']} {t['auc_minus_base']:+.2f}"
+                     f"{ci_txt(t['auc_minus_base_ci95'])} p {t['auc_vs_base_p']:.2f} ({t['option_effect']})]"
+                     if t.get("auc_minus_base") is not None else ""))
     # one file for the whole out_dir: a comparison of other games (or a later one of some
     # games) updates their entries and keeps the rest
     path = root / "summary.json"
