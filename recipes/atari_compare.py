@@ -1,6 +1,7 @@
 """hybrid_dual vs a2c (or any variants) on several Atari games and seeds, then one
 curve file, figure and summary table per game under ``out_dir/<game>/``, and one figure of
-every game analysed in ``out_dir`` so far (``out_dir/overview.png``).
+every game analysed in ``out_dir`` so far (``out_dir/overview.png``), and of each robust
+option's measured effect where it has one (``out_dir/effects.png``).
 
     python recipes/atari_expert.py env.game=Pong out_dir=experts/pong
     python recipes/atari_demos.py expert=experts/pong/model.pt out=demos/pong
@@ -31,7 +32,7 @@ def main(cfg: DictConfig) -> None:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
     print(f"\nresults: {raw['out_dir']}/<game>/comparison.png, curves.csv, summary.csv, summary.md; "
-          f"{raw['out_dir']}/overview.png (every game)")
+          f"{raw['out_dir']}/overview.png (every game), effects.png (each option's effect, where measured)")
 
 
 if __name__ == "__main__":

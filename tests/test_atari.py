@@ -534,6 +534,25 @@ def test_option_effects_compare_each_arm_with_its_base_only_with_3_seeds_each():
     assert not any(line.startswith("| a2c | `") for line in lines)  # rows without a base are not in it
 
 
+def test_effects_figure_draws_the_options_with_an_interval(tmp_path):
+    from torchrl_hybrid.experiments.atari_compare import effects_figure, option_effects
+
+    def row(variant, auc):
+        return {"variant": variant, "seeds": len(auc), "auc_per_seed": auc, "final_per_seed": auc}
+
+    bases = {"soft": ("paper", "loss.bc_labels=soft"), "gate": ("soft", "loss.bc_confidence=0.6")}
+    breakout = [row("paper", [1.0, 2.0, 3.0]), row("soft", [5.0, 6.0, 7.0]), row("gate", [5.0, 6.0])]
+    pong = [row("paper", [1.0, 2.0, 3.0])]
+    for t in (breakout, pong):
+        option_effects(t, bases)
+    assert effects_figure({"Breakout": breakout, "Pong": pong, "Qbert": ["old"]}, tmp_path / "e.png") == {
+        "Breakout": ["soft"]}  # the gate has 2 seeds: no interval, not drawn; Pong has no effect to draw
+    assert (tmp_path / "e.png").stat().st_size > 0
+    with pytest.raises(ValueError, match="no arm in summary has a measured option effect"):
+        effects_figure({"Pong": pong}, tmp_path / "none.png")
+    assert not (tmp_path / "none.png").exists()
+
+
 def test_overview_figure_draws_every_game_against_a2c(tmp_path):
     import numpy as np
 

@@ -28,7 +28,7 @@ from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
 __all__ = ["CompareConfig", "ROBUST_ARMS", "SweepProgress", "run_compare", "analyse_compare", "load_runs",
-           "option_effects", "option_text", "overview_figure"]
+           "option_effects", "option_text", "overview_figure", "effects_figure"]
 
 # Named arms: a variant plus AtariConfig overrides, listed in ``variants`` like a variant
 # and run in ``<out_dir>/<game>/<arm>_s<seed>``, so that the paper's agent, a robust
@@ -657,6 +657,8 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
     path.write_text(json.dumps(merged, indent=2))
     if result:
         overview_figure(merged, root / "overview.png")
+        if any(t.get("auc_minus_base") is not None for rows in merged.values() if _is_table(rows) for t in rows):
+            effects_figure(merged, root / "effects.png")
     return result
 
 
@@ -736,6 +738,52 @@ def overview_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[st
              "interval.\nBeside the AUC: the arm's verdict against a2c (interval of the AUC difference, "
              "permutation p). (n) = seeds.", fontsize=8, va="bottom")
     fig.tight_layout(rect=(0, 0.035, 1, 1), w_pad=9)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return drawn
+
+
+def effects_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[str, list[str]]:
+    """The measured effect of each robust option (:func:`option_effects`) on every game of a
+    comparison folder, from its ``summary.json``: a panel per game (each in its own score
+    units), a row per arm whose effect has an interval: the arm's AUC minus its base's, the
+    bootstrap 95 % interval, the permutation p and the option, and a line at 0 (no effect).
+    Returns game -> the arms drawn, top to bottom; raises ``ValueError`` where no game has
+    one."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = {g: [t for t in ts if t.get("auc_minus_base") is not None]
+            for g, ts in summary.items() if _is_table(ts)}
+    rows = {g: ts for g, ts in rows.items() if ts}
+    if not rows:
+        raise ValueError("effects: no arm in summary has a measured option effect (3 seeds of it and of its base)")
+    fig, axes = plt.subplots(len(rows), 1, figsize=(11, sum(0.9 + 0.5 * len(ts) for ts in rows.values()) + 0.6),
+                             gridspec_kw={"height_ratios": [1 + len(ts) for ts in rows.values()]}, squeeze=False)
+    colour = {"raises the AUC": "green", "lowers the AUC": "firebrick"}
+    drawn = {}
+    for ax, (game, ts) in zip(axes[:, 0], rows.items()):
+        y = np.arange(len(ts))[::-1]
+        for yi, t in zip(y, ts):
+            d, (lo, hi) = t["auc_minus_base"], t["auc_minus_base_ci95"]
+            c = colour.get(t["option_effect"], "0.35")
+            ax.errorbar([d], [yi], xerr=[[d - lo], [hi - d]], fmt="D", color=c, ms=7, capsize=4, lw=2)
+            ax.annotate(f"{t['option_effect']} (p = {t['auc_vs_base_p']:.2f})", (1.0, yi),
+                        xycoords=("axes fraction", "data"), xytext=(4, 0), textcoords="offset points",
+                        va="center", fontsize=8, color=c)
+        ax.axvline(0, color="k", lw=1)
+        ax.set_yticks(y, [f"{t['variant']} vs {t['option_base']}\n{t['option']}" for t in ts], fontsize=8)
+        ax.set_ylim(-0.7, len(ts) - 0.3)
+        ax.grid(axis="x", alpha=0.3)
+        ax.set_title(f"{game}: AUC of the arm minus AUC of the arm without its option (score units)", fontsize=10)
+        drawn[game] = [t["variant"] for t in ts]
+    fig.text(0.01, 0.003, "Diamond: difference of the mean AUCs over seeds, with its bootstrap 95 % interval; "
+             "an effect is stated where the interval excludes 0 (3 seeds each; p >= 0.1 with 3 against 3).",
+             fontsize=8, va="bottom")
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    fig.subplots_adjust(right=0.78)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return drawn
