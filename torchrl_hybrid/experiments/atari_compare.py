@@ -22,7 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from torchrl_hybrid.utils.config import merge_dicts
+from torchrl_hybrid.utils.config import flatten_dict, merge_dicts
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
@@ -136,7 +136,8 @@ class CompareConfig:
                                  f"(plus AtariConfig overrides), got {spec!r}")
         for name, spec in self.all_arms.items():
             base = spec.get("base")
-            if base is not None and (base == name or base not in set(ATARI_VARIANTS) | set(self.all_arms)):
+            if base is not None and (not isinstance(base, str) or base == name
+                                     or base not in set(ATARI_VARIANTS) | set(self.all_arms)):
                 raise ValueError(f"arms.{name}.base={base!r}: name the variant or arm this one adds an option to "
                                  f"(one of {list(ATARI_VARIANTS)} or {[a for a in self.all_arms if a != name]})")
         bad = sorted(set(self.variants) - set(ATARI_VARIANTS) - set(self.all_arms))
@@ -163,19 +164,12 @@ class CompareConfig:
         return self
 
 
-def _flat(d: dict, prefix: str = "") -> dict[str, Any]:
-    out = {}
-    for k, v in d.items():
-        out.update(_flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
-    return out
-
-
 def option_text(arm: tuple[str, dict], base: tuple[str, dict]) -> str:
     """What ``arm`` sets that ``base`` does not, as ``key=value`` pairs (both given as
     :meth:`CompareConfig.arm` returns them): e.g. ``loss.bc_confidence=0.6``. A setting
     the base has and the arm lacks reads ``key=default``."""
     (av, ao), (bv, bo) = arm, base
-    a, b = _flat(ao), _flat(bo)
+    a, b = flatten_dict(ao), flatten_dict(bo)
     if av != bv:
         a, b = {"variant": av, **a}, {"variant": bv, **b}
     parts = [f"{k}={v}" for k, v in a.items() if b.get(k, object()) != v]
@@ -409,20 +403,20 @@ def _reference(rows: list[dict]) -> dict | None:
         (t for t in rows if t["variant"].startswith(f"{REFERENCE} (")), None)
 
 
-def _auc_test(a, b) -> dict | None:
-    """AUC per seed of two arms (NaN: a seed without a score): the difference of means,
-    its bootstrap 95 % interval and a two-sided permutation p, or None where either side
-    has fewer than 3 finite seeds (a percentile bootstrap of 2 values is no interval)."""
+def _auc_test(a, b, more: str, less: str, same: str) -> dict:
+    """AUC per seed of an arm (``a``) and of the arm it is compared with (``b``; NaN: a seed
+    without a score): the difference of the means, its bootstrap 95 % interval, a two-sided
+    permutation p and a verdict, ``more`` / ``less`` where the interval excludes 0, else
+    ``same``. With fewer than 3 finite seeds on either side (a percentile bootstrap of 2
+    values is no interval) the numbers are None and the verdict says so."""
     a, b = np.array(a, float), np.array(b, float)
     a, b = a[np.isfinite(a)], b[np.isfinite(b)]
     if min(len(a), len(b)) < 3:
-        return None
+        return {"diff": None, "ci95": None, "p": None,
+                "verdict": f"too few seeds ({len(a)} vs {len(b)} finished with a score; 3 each needed)"}
     d, lo, hi = mean_diff_ci(a, b)
-    return {"diff": round(d, 2), "ci95": [round(lo, 2), round(hi, 2)], "p": round(permutation_p(a, b), 3)}
-
-
-def _n_finite(xs) -> int:
-    return int(np.isfinite(np.array(xs, float)).sum())
+    return {"diff": round(d, 2), "ci95": [round(lo, 2), round(hi, 2)], "p": round(permutation_p(a, b), 3),
+            "verdict": more if lo > 0 else less if hi < 0 else same}
 
 
 def _versus_reference(table: list[dict]) -> None:
@@ -437,14 +431,9 @@ def _versus_reference(table: list[dict]) -> None:
         t.update({"auc_minus_a2c": None, "auc_minus_a2c_ci95": None, "auc_vs_a2c_p": None, "verdict_vs_a2c": ""})
         if ref is None or t is ref:
             continue
-        test = _auc_test(t["auc_per_seed"], ref["auc_per_seed"])
-        if test is None:
-            t["verdict_vs_a2c"] = (f"too few seeds ({_n_finite(t['auc_per_seed'])} vs {_n_finite(ref['auc_per_seed'])}"
-                                   " finished with a score; 3 each needed)")
-            continue
-        lo, hi = test["ci95"]
+        test = _auc_test(t["auc_per_seed"], ref["auc_per_seed"], "faster", "slower", "not distinguishable")
         t.update({"auc_minus_a2c": test["diff"], "auc_minus_a2c_ci95": test["ci95"], "auc_vs_a2c_p": test["p"],
-                  "verdict_vs_a2c": "faster" if lo > 0 else "slower" if hi < 0 else "not distinguishable"})
+                  "verdict_vs_a2c": test["verdict"]})
 
 
 def _split_label(name: str) -> tuple[str, str]:
@@ -474,15 +463,10 @@ def option_effects(table: list[dict], bases: dict[str, tuple[str, str]]) -> None
         if base is None:
             t["option_effect"] = f"no finished {base_arm}{label} run here to compare with"
             continue
-        test = _auc_test(t["auc_per_seed"], base["auc_per_seed"])
-        if test is None:
-            t["option_effect"] = (f"too few seeds ({_n_finite(t['auc_per_seed'])} vs "
-                                  f"{_n_finite(base['auc_per_seed'])} finished with a score; 3 each needed)")
-            continue
-        lo, hi = test["ci95"]
+        test = _auc_test(t["auc_per_seed"], base["auc_per_seed"], "raises the AUC", "lowers the AUC",
+                         "no measurable effect")
         t.update({"auc_minus_base": test["diff"], "auc_minus_base_ci95": test["ci95"], "auc_vs_base_p": test["p"],
-                  "option_effect": "raises the AUC" if lo > 0 else "lowers the AUC" if hi < 0
-                  else "no measurable effect"})
+                  "option_effect": test["verdict"]})
 
 
 def _summary_markdown(game: str, table: list[dict], window: int,

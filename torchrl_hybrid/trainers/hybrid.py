@@ -21,6 +21,7 @@ from torchrl_hybrid.objectives import (
     InverseDynamicsLoss,
     PolicyEntropyLoss,
 )
+from torchrl_hybrid.utils.config import flatten_dict
 
 __all__ = ["GroupClipOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
            "make_hybrid_loss", "make_trainer", "resume_trainer"]
@@ -257,16 +258,6 @@ def attach_demonstrations(
     return buffer
 
 
-def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
 def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str, ...],
                    ignore: tuple[str, ...] = (), defaults: dict | None = None) -> int:
     """Loads ``out/checkpoint`` into ``trainer`` after checking that the run that wrote
@@ -284,9 +275,9 @@ def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str,
     if not saved_path.exists():
         raise ValueError(f"resume: {ckpt} has no {saved_path.name} beside it, so its settings cannot be checked; "
                          "pass overwrite=true to start again there, or choose another out_dir")
-    saved = _flatten({k: v for k, v in read_json(saved_path, "run config").items() if k in keys})
-    now = _flatten({k: v for k, v in settings.items() if k in keys})
-    for k, v in _flatten({k: v for k, v in (defaults or {}).items() if k in keys}).items():
+    saved = flatten_dict({k: v for k, v in read_json(saved_path, "run config").items() if k in keys})
+    now = flatten_dict({k: v for k, v in settings.items() if k in keys})
+    for k, v in flatten_dict({k: v for k, v in (defaults or {}).items() if k in keys}).items():
         saved.setdefault(k, v)
     diff = sorted(k for k in set(saved) | set(now) if k not in ignore and saved.get(k) != now.get(k))
     if diff:

@@ -8,7 +8,7 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["dataclass_from_dict", "merge_dicts"]
+__all__ = ["dataclass_from_dict", "flatten_dict", "merge_dicts"]
 
 _SCALARS = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
 
@@ -58,4 +58,16 @@ def merge_dicts(a: dict, b: dict) -> dict:
     out = copy.deepcopy(a)
     for k, v in b.items():
         out[k] = merge_dicts(out.get(k, {}), v) if isinstance(v, dict) else v
+    return out
+
+
+def flatten_dict(d: dict, prefix: str = "") -> dict[str, Any]:
+    """Nested dicts as one level of dotted keys: ``{"loss": {"bc_coeff": 1}}`` ->
+    ``{"loss.bc_coeff": 1}``."""
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(flatten_dict(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
     return out
