@@ -7,7 +7,7 @@ ARGS ?=
 # pytest-xdist processes for `make test` (one torch thread each)
 TEST_WORKERS ?= 2
 
-.PHONY: run test install clean
+.PHONY: run test test-cuda install clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,10 @@ run: $(VENV)/.installed
 
 test: $(VENV)/.installed
 	$(PY) -m pytest -q -n $(TEST_WORKERS) tests
+
+# the whole suite with every run on the GPU (a machine with CUDA; the CI machine has none)
+test-cuda: $(VENV)/.installed
+	TORCHRL_HYBRID_TEST_DEVICE=cuda $(PY) -m pytest -q tests
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache

@@ -10,6 +10,7 @@ from torchrl.envs.utils import check_env_specs  # noqa: E402
 from torchrl_hybrid.envs.atari import ATARI_GAMES, AtariEnv, action_names  # noqa: E402
 from torchrl_hybrid.modules import AtariEncoder, DualInverseDynamics, make_atari_actor_critic  # noqa: E402
 from torchrl_hybrid.objectives import DualInverseDynamicsLoss  # noqa: E402
+from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 
 def test_encoder_matches_the_paper():
@@ -106,6 +107,7 @@ def tiny(tmp, **kw):
         else:
             d[k] = v
     d.setdefault("out_dir", str(tmp))
+    d.setdefault("device", TEST_DEVICE)
     return atari_config(d)
 
 

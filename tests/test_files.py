@@ -14,12 +14,13 @@ from tensordict import TensorDict
 from torchrl_hybrid.data import load_demos, save_demos
 from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
 from torchrl_hybrid.utils.files import check_memmap_folder, prepare_out_dir
+from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def tiny(out, **kw):
-    d = {"total_frames": 640, "out_dir": str(out), "device": "cpu",
+    d = {"total_frames": 640, "out_dir": str(out), "device": TEST_DEVICE,
          "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8,
                     "progress_bar": False, "backend": "csv"}}
     d.update(kw)

@@ -8,10 +8,11 @@ import torch
 from torchrl_hybrid.trainers.run import EnvFamily, Run, build_run, train_run
 from torchrl_hybrid.trainers.taxi import GymFamily, TaxiConfig, build_taxi, config_from_dict, train_taxi
 from torchrl_hybrid.utils.process import configure_worker
+from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 
 def tiny(out, **top) -> TaxiConfig:
-    d = {"total_frames": 640, "out_dir": str(out), "threads": 1,
+    d = {"total_frames": 640, "out_dir": str(out), "threads": 1, "device": TEST_DEVICE,
          "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": False}}
     d.update(top)
     return config_from_dict(d)

@@ -11,14 +11,17 @@ import torch
 from torchrl_hybrid.data import save_demos
 from torchrl_hybrid.trainers import VARIANTS
 from torchrl_hybrid.trainers.taxi import TaxiConfig, config_from_dict, train_taxi
+from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def tiny(tmp_path, **kw) -> TaxiConfig:
-    d = {"total_frames": 640, "out_dir": str(tmp_path / kw.get("variant", "run")),
+    d = {"total_frames": 640, "out_dir": str(tmp_path / kw.get("variant", "run")), "device": TEST_DEVICE,
          "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8,
                     "progress_bar": False, "backend": "csv"}}
+    if kw.get("engine") == "batched":
+        d["device"] = "cpu"  # the batched engine runs on the CPU only
     for k, v in kw.items():
         if "." in k:
             g, kk = k.split(".")

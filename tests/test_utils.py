@@ -3,6 +3,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from torchrl_hybrid.utils.metrics import upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
@@ -44,6 +45,6 @@ def test_legacy_files_are_read_with_the_accuracy_columns_named_apart():
 def test_metrics_hook_refuses_an_evaluator_column_that_is_a_loss_output(tmp_path):
     from torchrl_hybrid.trainers.hooks import MetricsHook
     hook = MetricsHook(tmp_path / "m.csv", 10, evaluator=lambda: {"idm_accuracy": 1.0})
-    hook._losses = {"idm_accuracy": 0.5}
+    hook._losses = {"idm_accuracy": torch.tensor(0.5)}
     with pytest.raises(ValueError, match="also loss outputs"):
         hook.row()

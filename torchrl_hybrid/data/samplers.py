@@ -4,6 +4,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
+from tensordict import TensorDictBase
 from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
@@ -11,7 +12,14 @@ __all__ = ["CurriculumSampler", "VisitedStateSampler"]
 
 
 def _storage_entry(storage: Storage, key) -> torch.Tensor:
-    return storage.get(torch.arange(len(storage))).get(key)
+    """Entry ``key`` of every stored item. A tensor storage (TorchRL's ``LazyTensorStorage``,
+    ``LazyMemmapStorage``) gives a view of that one entry: reading the items whole would copy
+    every field (with Atari demos, every frame stack) to learn one integer per pair."""
+    n = len(storage)
+    data = getattr(storage, "_storage", None)
+    if isinstance(data, TensorDictBase):
+        return data.get(key)[:n]
+    return storage.get(torch.arange(n)).get(key)  # other storages (lists of items): no column to read
 
 
 class CurriculumSampler(Sampler):
@@ -147,8 +155,8 @@ class VisitedStateSampler(Sampler):
             self._build(storage)
         order, counts, offsets = self._index
         v = self._visited.to(counts.device)
-        v = v[(v >= 0) & (v < self.n_states)]
-        v = v[counts[v] > 0]
+        inside = (v >= 0) & (v < self.n_states)
+        v = v[inside & (counts[v.clamp(0, self.n_states - 1)] > 0)]  # one sync: the visits that have pairs
         r = (torch.rand(v.shape, generator=self._rng).to(v.device) * counts[v]).long()
         return order[offsets[v] + r], {}
 

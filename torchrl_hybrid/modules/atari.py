@@ -52,6 +52,8 @@ class AtariEncoder(nn.Module):
         self.compile_mode = "off"
 
     COMPILE_MODES = ("off", "default", "reduce-overhead", "max-autotune")
+    # modes that record a CUDA graph per input shape: batches are padded to a few fixed sizes
+    CUDA_GRAPH_MODES = ("reduce-overhead", "max-autotune")
 
     def compile_cnn(self, mode: str = "default") -> "AtariEncoder":
         """Runs the CNN (the convolutions and the 512-unit layer: all of an update's
@@ -61,7 +63,15 @@ class AtariEncoder(nn.Module):
         around the CNN is unchanged. Measured on a 2-core CPU it is about as fast as the
         plain path (``benchmarks/atari_compile.py``: 1.02x for the learner's forward +
         backward, 1.08x for collection's forward), so the default is off; not measured
-        on a GPU yet."""
+        on a GPU yet.
+
+        In the CUDA-graph modes (``reduce-overhead``, ``max-autotune``) every distinct input
+        shape records a graph of its own, and the batch sizes vary from update to update
+        (episode ends change how many rows feature reuse leaves to the CNN); so the batch
+        is padded with zero frames to the next power of two (at least 8) and the padding's
+        rows are dropped from the output: at most ``log2`` of the largest batch sizes, each
+        in grad and no-grad mode, instead of one graph per batch size. Padded rows cost
+        compute (under 2x) and change no other row's features or gradients."""
         if mode not in self.COMPILE_MODES:
             raise ValueError(f"compile={mode!r}: choose one of {self.COMPILE_MODES}")
         # batch sizes vary (collection, learner, the rows feature reuse leaves): torch.compile
@@ -146,15 +156,17 @@ class AtariEncoder(nn.Module):
         if x.dtype == torch.uint8 and x.shape[1] % 8 == 0:  # compare 8 bytes at a time
             x, y = x.view(torch.int64), y.view(torch.int64)
         same = (x[:-1] == y[1:]).all(-1)  # row i of frames == row i + 1 of src
-        if not bool(same.any()):
-            return None
-        n = x.shape[0]
-        need = torch.ones(n, dtype=torch.bool)
+        n, dev = x.shape[0], frames.device
+        need = torch.ones(n, dtype=torch.bool, device=dev)
         need[:-1] = ~same
-        fresh = self._forward(frames.reshape(n, *self.in_shape)[need])
-        index = torch.empty(n, dtype=torch.long)
-        index[need] = torch.arange(n, n + fresh.shape[0])
-        index[:-1][same] = torch.arange(1, n)[same]
+        # one device-to-host sync: the rows the CNN must run on (their count sizes the batch)
+        fresh_rows = need.nonzero().squeeze(-1)
+        if fresh_rows.numel() == n:  # nothing to reuse
+            return None
+        fresh = self._forward(frames.reshape(n, *self.in_shape)[fresh_rows])
+        # row i takes row i + 1 of the cached features where it matched, else its fresh row
+        index = torch.arange(1, n + 1, device=dev)
+        index[fresh_rows] = torch.arange(n, n + fresh_rows.numel(), device=dev)
         feats = torch.cat([src_out.reshape(n, self.out_features), fresh])[index]
         return feats.reshape(*frames.shape[:-3], self.out_features)
 
@@ -168,8 +180,22 @@ class AtariEncoder(nn.Module):
                 x = x.contiguous(memory_format=torch.channels_last)
             except RuntimeError:  # inside torch.vmap (TorchRL's value estimators): keep the layout
                 pass
-        cnn = self._compiled if self._compiled is not None else self._cnn
-        return cnn(x).reshape(*lead, self.out_features)
+        if self._compiled is None:
+            return self._cnn(x).reshape(*lead, self.out_features)
+        n = x.shape[0]
+        if self.compile_mode in self.CUDA_GRAPH_MODES and n != padded_batch_size(n):
+            fmt = torch.channels_last if self.channels_last and x.dim() == 4 and x.is_contiguous(
+                memory_format=torch.channels_last) else torch.contiguous_format
+            padded = x.new_zeros((padded_batch_size(n), *x.shape[1:])).contiguous(memory_format=fmt)
+            padded[:n] = x
+            return self._compiled(padded)[:n].reshape(*lead, self.out_features)
+        return self._compiled(x).reshape(*lead, self.out_features)
+
+
+def padded_batch_size(n: int) -> int:
+    """The batch size a CUDA-graph compiled CNN runs ``n`` rows at: the next power of two,
+    at least 8."""
+    return max(8, 1 << (max(n, 1) - 1).bit_length())
 
 
 def orthogonal_init_(module: nn.Module, gain: float) -> nn.Module:

@@ -20,13 +20,14 @@ from torchrl.collectors import Collector
 from torchrl.envs import RewardSum, TransformedEnv
 
 from torchrl_hybrid.collectors import WORKER_KINDS, AtariCollector, make_worker_collector
+from torchrl_hybrid.collectors.workers import worker_devices
 from torchrl_hybrid.data import EXPERT_ACTION_KEY, CurriculumSampler, load_demos
 from torchrl_hybrid.envs.atari import AtariEnv
 from torchrl_hybrid.experts import load_expert, record_demos
 from torchrl_hybrid.modules import AtariEncoder, make_atari_actor_critic
 from torchrl_hybrid.modules.atari import orthogonal_init_
 from torchrl_hybrid.trainers.evaluation import evaluate_atari, inverse_model_accuracy
-from torchrl_hybrid.trainers.hooks import NextStateValueHook
+from torchrl_hybrid.trainers.hooks import NextStateValueHook, RandomStateHook
 from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.run import DemoConfig, LoggerConfig, LossConfig, OptimConfig  # what Atari's settings extend
 from torchrl_hybrid.trainers.run import EnvFamily, Networks, Run, RunConfig, Setup, build_run, finite, train_run
@@ -66,6 +67,9 @@ class AtariCollectorConfig:
     backend: str = "atari"
     workers: int = 2            # multi_sync / ray: must divide env.num_envs
     address: str | None = None  # ray: the cluster to join (e.g. auto); None starts a local one
+    # ray: the share of a GPU each actor asks for, to run its policy there; 0 = the workers run their policy
+    # on the CPU (multi_sync workers always do) and each batch is moved to the learner's device
+    worker_gpus: float = 0.0
     # atari backend: split the games into this many ale-py vector envs stepped as a pipeline, so that
     # the policy runs on one group's frames while another group's games step. Still synchronous A2C
     # (every action from the current policy on the current frames); pays off where the policy runs
@@ -179,6 +183,9 @@ class AtariConfig(RunConfig):
         if self.collector.backend in WORKER_KINDS and (self.collector.workers < 1
                                                         or self.env.num_envs % self.collector.workers):
             raise ValueError(f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
+        if self.collector.backend in WORKER_KINDS or self.collector.worker_gpus:
+            worker_devices(self.collector.backend if self.collector.backend in WORKER_KINDS else "atari",
+                           self.collector.worker_gpus)
         if self.collector.env_groups < 1 or self.env.num_envs % self.collector.env_groups:
             raise ValueError(f"collector.env_groups={self.collector.env_groups} must divide "
                              f"env.num_envs={self.env.num_envs}")
@@ -323,7 +330,8 @@ class AtariFamily(EnvFamily):
         if cfg.collector.backend in WORKER_KINDS:
             fns = [functools.partial(_worker_env, cfg, i) for i in range(cfg.collector.workers)]
             return make_worker_collector(cfg.collector.backend, fns, policy, frames_per_batch=cfg.frames_per_batch,
-                                         total_frames=total_steps, device=device, address=cfg.collector.address)
+                                         total_frames=total_steps, address=cfg.collector.address,
+                                         worker_gpus=cfg.collector.worker_gpus)
         return Collector(setup.env, policy, frames_per_batch=cfg.frames_per_batch, total_frames=total_steps,
                          env_device="cpu", policy_device=device, storing_device=device,
                          auto_register_policy_transforms=False)
@@ -338,6 +346,11 @@ class AtariFamily(EnvFamily):
     def register_hooks(self, run: Run) -> None:
         if run.variant.rl:
             NextStateValueHook(run.critic).register(run.trainer)
+
+    def register_late_hooks(self, run: Run) -> None:
+        # the games' emulator state is not saved, so a resumed run is not bit-exact; its random
+        # state (CPU and CUDA generators) is
+        RandomStateHook().register(run.trainer)
 
     def evaluator(self, run: Run):
         inverse_model, demos = run.inverse_model, run.demos

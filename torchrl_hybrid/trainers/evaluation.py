@@ -28,8 +28,9 @@ def evaluate_policy(env: EnvBase, policy, max_steps: int, deterministic: bool = 
     """
     etype = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     device = _device_of(policy)
-    if device is not None and env.device is not None and device != env.device:
-        policy = _on_device(policy, device, env.device)
+    env_device = env.device if env.device is not None else torch.device("cpu")  # a device-less env steps on the CPU
+    if device is not None and device != env_device:
+        policy = _on_device(policy, device, env_device)
     with set_exploration_type(etype):
         td = env.rollout(max_steps, policy, break_when_any_done=False, auto_reset=True)
     reward = td.get(("next", "reward")).squeeze(-1)

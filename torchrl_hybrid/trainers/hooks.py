@@ -15,7 +15,7 @@ from torchrl.objectives import LossModule
 from torchrl.trainers import Trainer, TrainerHookBase
 
 __all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "InverseModelReadyHook", "MetricsHook",
-           "NextStateValueHook", "RunStateHook", "LRWarmupHook"]
+           "NextStateValueHook", "RandomStateHook", "RunStateHook", "LRWarmupHook", "random_state", "set_random_state"]
 
 
 def _check_schedulable(loss: LossModule, name: str) -> None:
@@ -295,32 +295,42 @@ class MetricsHook(TrainerHookBase):
         self.pbar_keys = pbar_keys
         self.return_key = return_key
         self.rows: list[dict[str, float]] = []
-        self._returns: list[torch.Tensor] = []
-        self._losses: dict[str, float] = {}
+        self._returns: list[tuple[torch.Tensor, torch.Tensor]] = []  # (running returns, done) per batch
+        self._losses: dict[str, torch.Tensor] = {}
         self._next = 0
         self._t0 = time.perf_counter()
         self._trainer: Trainer | None = None
         self._fieldnames: list[str] | None = None
 
     def collect(self, batch: TensorDictBase) -> None:
-        done = batch.get(("next", "done")).squeeze(-1)
-        if done.any():
-            self._returns.append(batch.get(self.return_key).squeeze(-1)[done])
+        # kept on the learner's device until the next row: no device-to-host sync per batch (copies:
+        # a collector may write its next batch into the same memory)
+        self._returns.append((batch.get(self.return_key).reshape(-1).clone(),
+                              batch.get(("next", "done")).reshape(-1).clone()))
 
     def losses(self, optim_steps: int, average_losses: TensorDictBase | None) -> None:
-        if average_losses is not None:
-            self._losses = {k: float(v.detach()) for k, v in average_losses.items() if v.numel() == 1}
+        if average_losses is not None:  # read on the host only when a row is written
+            self._losses = {k: v.detach() for k, v in average_losses.items() if v.numel() == 1}
 
     def row(self) -> dict[str, float]:
-        """Computes and writes one row now."""
-        returns = torch.cat(self._returns) if self._returns else torch.zeros(0)
+        """Computes and writes one row now (the device-to-host reads of the row happen here,
+        once per row, not once per update)."""
+        if self._returns:
+            returns = torch.cat([r for r, _ in self._returns])[torch.cat([d for _, d in self._returns])]
+        else:
+            returns = torch.zeros(0)
         self._returns = []
         row = {
             "frames": int(self._trainer.collected_frames) if self._trainer else 0,
             "return_mean": float(returns.mean()) if returns.numel() else math.nan,
             "episodes": int(returns.numel()),
         }
-        row.update(self._losses)
+        if self._losses:  # one read for every loss and diagnostic of the last update
+            names = list(self._losses)
+            dev = next(iter(self._losses.values())).device
+            # float32 -> float64 is exact: the same numbers as float() of each tensor
+            values = torch.stack([self._losses[k].reshape(()).to(dev, torch.float64) for k in names]).tolist()
+            row.update(zip(names, values))
         if self.evaluator is not None:
             extra = self.evaluator()
             clash = sorted(set(extra) & set(self._losses))
@@ -422,8 +432,10 @@ class NextStateValueHook(TrainerHookBase):
         nv[:, :-1] = v[:, 1:]
         need = batch.get(("next", "done")).reshape(batch.shape).clone()
         need[:, -1] = True
-        obs = batch.get(("next", "observation"))[need]
-        nv[need] = self.critic(TensorDict({"observation": obs}, [obs.shape[0]])).get(self.value_key)
+        rows = need.reshape(-1).nonzero().squeeze(-1)  # one device-to-host sync: how many values to compute
+        obs = batch.get(("next", "observation")).flatten(0, 1)[rows]
+        values = self.critic(TensorDict({"observation": obs}, [obs.shape[0]])).get(self.value_key)
+        nv.view(-1, *nv.shape[2:])[rows] = values
         batch.set(("next", self.value_key), nv)
         return batch
 
@@ -437,12 +449,54 @@ class NextStateValueHook(TrainerHookBase):
         trainer.register_op("batch_process", self)
 
 
+def random_state() -> dict[str, Any]:
+    """torch's global random state: the CPU generator's and, where CUDA is in use, every
+    CUDA device's (what ``torch.manual_seed`` seeds, so what a resumed run must restore)."""
+    state: dict[str, Any] = {"torch_rng": torch.get_rng_state()}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda_rng"] = torch.stack(torch.cuda.get_rng_state_all())
+    return state
+
+
+def set_random_state(state: dict[str, Any]) -> None:
+    """Restores :func:`random_state`. A state saved with CUDA generators restores them when
+    as many CUDA devices are visible; on a machine without them (a CUDA run resumed on the
+    CPU) only the CPU generator is restored, with a warning: the run goes on, not
+    bit-exactly."""
+    torch.set_rng_state(torch.as_tensor(state["torch_rng"], dtype=torch.uint8).cpu())
+    cuda = state.get("cuda_rng")
+    if cuda is None:
+        return
+    cuda = [torch.as_tensor(c, dtype=torch.uint8).cpu() for c in cuda]
+    if torch.cuda.is_available() and torch.cuda.device_count() == len(cuda):
+        torch.cuda.set_rng_state_all(cuda)
+    else:
+        warnings.warn(f"the checkpoint holds the random state of {len(cuda)} CUDA device(s), this machine has "
+                      f"{torch.cuda.device_count() if torch.cuda.is_available() else 0}; only the CPU generator is "
+                      "restored, so the resumed run is not bit-exact", stacklevel=2)
+
+
+class RandomStateHook(TrainerHookBase):
+    """Checkpoints torch's global random state (CPU and CUDA generators: :func:`random_state`),
+    so that a resumed run draws the same actions, expert batches and noise as one that never
+    stopped. :class:`RunStateHook` includes it."""
+
+    def state_dict(self) -> dict[str, Any]:
+        return random_state()
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        set_random_state(state_dict)
+
+    def register(self, trainer: Trainer, name: str = "random_state") -> None:
+        trainer.register_module(name, self)
+
+
 class RunStateHook(TrainerHookBase):
     """Checkpoints what a bit-exact resume needs beyond weights, optimiser and samplers:
-    torch's global random state, the collector's carried-over tensordict (the envs'
-    current observations and running returns) and the envs' own state, for envs that
-    offer ``run_state`` / ``load_run_state`` (:class:`~torchrl_hybrid.envs.TabularEnv`,
-    also under a ``TransformedEnv``).
+    torch's global random state (CPU and CUDA generators), the collector's carried-over
+    tensordict (the envs' current observations and running returns) and the envs' own
+    state, for envs that offer ``run_state`` / ``load_run_state``
+    (:class:`~torchrl_hybrid.envs.TabularEnv`, also under a ``TransformedEnv``).
 
     Args:
         collector: a TorchRL ``Collector`` (its ``_carrier`` is the carried-over tensordict).
@@ -458,12 +512,12 @@ class RunStateHook(TrainerHookBase):
 
     def state_dict(self) -> dict[str, Any]:
         carrier = getattr(self.collector, "_carrier", None)
-        return {"torch_rng": torch.get_rng_state(),
+        return {**random_state(),
                 "carrier": None if carrier is None else carrier.to_dict(),
                 "envs": {str(i): e.run_state() for i, e in enumerate(self.envs)}}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        torch.set_rng_state(torch.as_tensor(state_dict["torch_rng"], dtype=torch.uint8))
+        set_random_state(state_dict)
         carrier = getattr(self.collector, "_carrier", None)
         if carrier is not None and state_dict.get("carrier") is not None:
             carrier.update(TensorDict(state_dict["carrier"], batch_size=carrier.batch_size, device=carrier.device))

@@ -11,7 +11,7 @@ from torchrl.objectives import A2CLoss, ValueEstimators
 from tensordict import TensorDictBase
 from torch import nn
 from torchrl.checkpoint import Checkpoint
-from torchrl.trainers import DefaultOptimizationStepper, OptimizationStepper, Trainer
+from torchrl.trainers import OptimizationStepper, Trainer
 
 from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
 from torchrl_hybrid.objectives import (
@@ -23,7 +23,7 @@ from torchrl_hybrid.objectives import (
 )
 from torchrl_hybrid.utils.config import flatten_dict
 
-__all__ = ["GroupClipOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
+__all__ = ["ClippedOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
            "make_hybrid_loss", "make_trainer", "resume_trainer"]
 
 
@@ -128,25 +128,42 @@ def make_hybrid_loss(
     return HybridLoss(rl_loss, idm_loss, bc_loss)
 
 
-class GroupClipOptimizationStepper(OptimizationStepper):
-    """One optimiser step that clips the gradient norm of each parameter group
-    separately (e.g. the policy's and the inverse model's), so that a large
-    policy-gradient step does not shrink the inverse model's update, as a single
-    global clip would.
+class ClippedOptimizationStepper(OptimizationStepper):
+    """One optimiser step on the sum of the ``loss_*`` terms, with the gradient norm clipped
+    to ``max_norm``: over all parameters (``per_group=False``, TorchRL's default stepper does
+    the same), or for each optimiser parameter group on its own (``per_group=True``: e.g. the
+    policy's and the inverse model's, so that a large policy-gradient step does not shrink
+    the inverse model's update, as a single global clip would).
+
+    The norms before the clip are returned as ``grad_norm`` (or ``grad_norm_<group>``),
+    left on the device: unlike TorchRL's default stepper, which reads the norm with
+    ``float()``, no update waits for the device.
 
     Args:
-        max_norm: the clip applied to each group's gradient norm.
+        max_norm: the clip (``None``: no clip, the norm is still reported).
+        per_group: clip each parameter group separately.
     """
 
-    def __init__(self, max_norm: float):
-        self.max_norm = float(max_norm)
+    def __init__(self, max_norm: float | None, per_group: bool = False):
+        self.max_norm = None if max_norm is None else float(max_norm)
+        self.per_group = bool(per_group)
+
+    @staticmethod
+    def _clip(params, max_norm: float | None) -> torch.Tensor:
+        params = [p for p in params if p.grad is not None]
+        if max_norm is not None:
+            return nn.utils.clip_grad_norm_(params, max_norm).detach()
+        return nn.utils.get_total_norm([p.grad for p in params]).detach()
 
     def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
         losses_td = trainer.compute_loss(sub_batch)
         sum(v for k, v in losses_td.items() if k.startswith("loss")).backward()
-        for i, group in enumerate(trainer.optimizer.param_groups):
-            gn = nn.utils.clip_grad_norm_(group["params"], self.max_norm)
-            losses_td[f"grad_norm_{group.get('name', i)}"] = gn.detach()
+        groups = trainer.optimizer.param_groups
+        if self.per_group:
+            for i, group in enumerate(groups):
+                losses_td[f"grad_norm_{group.get('name', i)}"] = self._clip(group["params"], self.max_norm)
+        else:
+            losses_td["grad_norm"] = self._clip([p for g in groups for p in g["params"]], self.max_norm)
         trainer.optimizer.step()
         trainer.optimizer.zero_grad()
         return losses_td.detach()
@@ -169,16 +186,16 @@ def make_trainer(
 ) -> Trainer:
     """A TorchRL ``Trainer`` with one optimisation step per collected batch.
 
-    With ``clip_per_group`` each optimiser parameter group's gradient is clipped
-    to ``clip_norm`` on its own (:class:`GroupClipOptimizationStepper`); otherwise
-    the global norm is (TorchRL's default stepper). With ``frame_skip`` > 1 the
+    The step is a :class:`ClippedOptimizationStepper`: with ``clip_per_group`` each
+    optimiser parameter group's gradient is clipped to ``clip_norm`` on its own, otherwise
+    the global norm is (as TorchRL's default stepper does, without its device sync).
+    TorchRL's own per-update log of the losses (``auto_log_optim_steps``, a list that
+    grows by one entry per update and is never emptied) is off: the learning curve
+    (:class:`~torchrl_hybrid.trainers.hooks.MetricsHook`) logs them. With ``frame_skip`` > 1 the
     trainer counts game frames (``frame_skip`` per env step), and ``total_frames``
     is in game frames too.
     """
-    if clip_per_group and clip_norm is not None:
-        stepper = GroupClipOptimizationStepper(clip_norm)
-    else:
-        stepper = DefaultOptimizationStepper()
+    stepper = ClippedOptimizationStepper(clip_norm, per_group=clip_per_group and clip_norm is not None)
     return Trainer(
         collector=collector,
         total_frames=total_frames,
@@ -195,6 +212,7 @@ def make_trainer(
         checkpoint=Checkpoint() if save_trainer_file is not None else None,
         save_trainer_interval=save_trainer_interval,
         log_interval=10**12,
+        auto_log_optim_steps=False,
         seed=seed,
     )
 

@@ -33,6 +33,7 @@ from torchrl.record.loggers import get_logger
 from torchrl.trainers.algorithms.configs.utils import RMSpropConfig
 from torchrl.trainers import UpdateWeights
 
+from torchrl_hybrid.collectors.workers import BatchToDeviceHook, worker_weights_getter
 from torchrl_hybrid.data import EXPERT_ACTION_KEY
 from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics
 from torchrl_hybrid.trainers.hooks import LRWarmupHook, MetricsHook
@@ -254,6 +255,11 @@ class EnvFamily:
     def collector(self, cfg, setup: Setup, policy, device: torch.device, total_steps: int):
         raise NotImplementedError
 
+    def small_model(self, cfg) -> bool:
+        """Whether the networks are so small that ``device=auto`` keeps them on the CPU: with
+        a GPU, every env step would cost a host-device round trip larger than their work."""
+        return False
+
     def uses_workers(self, cfg) -> bool:
         """Whether the collector steps the envs in other processes (their policy copies get
         the learner's weights after every batch)."""
@@ -393,7 +399,7 @@ def build_run(cfg, family: EnvFamily) -> Run:
     """Builds the envs, networks, losses, collector and TorchRL trainer of one run (hooks
     registered, checkpoint resumed when ``cfg.resume``), without training."""
     cfg.validate()
-    device = resolve_device(cfg.device)  # networks, learner, demos; the envs stay on the CPU
+    device = resolve_device(cfg.device, small_model=family.small_model(cfg))  # networks, learner, demos; envs: CPU
     variant = get_variant(cfg.variant)
     out = Path(cfg.out_dir)
     lock = prepare_out_dir(out, resume=cfg.resume, overwrite=cfg.overwrite)  # held while the run lives
@@ -407,7 +413,12 @@ def build_run(cfg, family: EnvFamily) -> Run:
                                            setup.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
                                            mlp_layers=cfg.mlp_layers, n_states=n_states)
         loss = make_hybrid_loss(variant, nets.actor, nets.critic, inverse_model, expert_action_key=EXPERT_ACTION_KEY,
-                                **cfg.loss.loss_kwargs(), **family.loss_extra).to(device)  # moves every network
+                                **cfg.loss.loss_kwargs(), **family.loss_extra).to(device)
+        # the loss moves the networks it trains; the collection policy may hold more (Atari's writes the
+        # critic's state_value, which a variant without the RL loss never trains)
+        for net in (nets.actor, nets.critic, nets.collection_policy):
+            if net is not None:
+                net.to(device)
         optimizer = cfg.optim.make(param_groups(loss))
         skip = family.frame_skip(setup)
         policy = nets.collection_policy if nets.collection_policy is not None else nets.actor
@@ -432,9 +443,12 @@ def build_run(cfg, family: EnvFamily) -> Run:
             warmup = WARMUP_UPDATES * frames_per_batch if cfg.init_from else 0
         if warmup > 0:
             LRWarmupHook(optimizer, warmup).register(trainer)
+        if family.uses_workers(cfg):
+            BatchToDeviceHook(device).register(trainer)  # the workers store their batches on the CPU
         family.register_hooks(run)
         if family.uses_workers(cfg):  # the workers' policy copies get the learner's weights after every batch
-            UpdateWeights(collector, update_weights_interval=1).register(trainer)
+            UpdateWeights(collector, update_weights_interval=1,
+                          policy_weights_getter=worker_weights_getter(policy)).register(trainer)
         if variant.bc is not None:
             lc = cfg.loss
             attach_demonstrations(trainer, loss, setup.demos, sampler=family.sampler(cfg, setup),

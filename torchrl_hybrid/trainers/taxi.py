@@ -23,7 +23,7 @@ from typing import Any
 import torch
 from torchrl.collectors import Collector
 
-from torchrl_hybrid.collectors.workers import make_worker_collector
+from torchrl_hybrid.collectors.workers import make_worker_collector, worker_devices
 from torchrl_hybrid.data import (
     EXPERT_ACTION_KEY,
     CurriculumSampler,
@@ -38,7 +38,7 @@ from torchrl_hybrid.envs import BACKENDS, TabularEnv, TabularModel, make_toy_tex
 from torchrl_hybrid.experts import episode_ends, expected_return, load_gym_expert, optimal_policy, record_episodes
 from torchrl_hybrid.modules import MLPEncoder, OneHotEncoder, make_mlp_actor_critic, make_tabular_actor_critic
 from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
-from torchrl_hybrid.trainers.hooks import RunStateHook
+from torchrl_hybrid.trainers.hooks import RandomStateHook, RunStateHook
 from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.run import (
     DemoConfig,
@@ -130,6 +130,9 @@ class CollectorConfig:
                                  # `workers` processes | ray: RayCollector, `workers` Ray actors (pip install -e '.[ray]')
     workers: int = 2             # multi_sync / ray: env.num_envs is split evenly between them
     address: str | None = None   # ray: the cluster to join (e.g. auto); None starts a local one with `workers` CPUs
+    # ray: the share of a GPU each actor asks for, to run its policy there; 0 = the workers run their policy
+    # on the CPU (multi_sync workers always do) and each batch is moved to the learner's device
+    worker_gpus: float = 0.0
 
 
 COLLECTORS = ("single", "multi_sync", "ray")
@@ -186,6 +189,10 @@ class TaxiConfig(RunConfig):
             need(self.collector.workers >= 1 and self.env.num_envs % self.collector.workers == 0,
                  f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
             need(self.engine == "torchrl", "collector.kind=multi_sync|ray needs engine=torchrl")
+            worker_devices(self.collector.kind, self.collector.worker_gpus)
+        need(self.collector.worker_gpus == 0 or self.collector.kind == "ray",
+             f"collector.worker_gpus={self.collector.worker_gpus} is a Ray setting (GPUs per actor); "
+             f"collector.kind={self.collector.kind!r}")
         need(self.rank >= 1, f"rank must be an integer >= 1, got {self.rank}")
         need(self.mlp_layers >= 1, f"mlp_layers must be >= 1, got {self.mlp_layers}")
         for name in ("eta", "epsilon"):
@@ -353,7 +360,8 @@ def make_collector(cfg: TaxiConfig, env, actor, device):
                          **common)
     env.close()  # the workers build their own envs
     fns = [functools.partial(_worker_env, cfg, i) for i in range(cfg.collector.workers)]
-    return make_worker_collector(cfg.collector.kind, fns, actor, device=device, address=cfg.collector.address, **common)
+    return make_worker_collector(cfg.collector.kind, fns, actor, address=cfg.collector.address,
+                                 worker_gpus=cfg.collector.worker_gpus, **common)
 
 
 class GymFamily(EnvFamily):
@@ -403,6 +411,9 @@ class GymFamily(EnvFamily):
     def collector(self, cfg: TaxiConfig, setup: Setup, policy, device, total_steps: int):
         return make_collector(cfg, setup.env, policy, device)
 
+    def small_model(self, cfg: TaxiConfig) -> bool:
+        return True  # one-hot tables and small MLPs: device=auto keeps them on the CPU
+
     def uses_workers(self, cfg: TaxiConfig) -> bool:
         return cfg.collector.kind != "single"
 
@@ -429,6 +440,8 @@ class GymFamily(EnvFamily):
         if run.cfg.collector.kind == "single" and isinstance(run.env.base_env, TabularEnv):
             # bit-exact resume: random states, the envs' states
             RunStateHook(run.collector, [run.env, run.setup.extra["eval_env"]]).register(run.trainer)
+        else:  # gymnasium envs cannot save their state; the random state still resumes
+            RandomStateHook().register(run.trainer)
 
     def finish(self, run: Run) -> tuple[dict, dict]:
         cfg, x, max_steps = run.cfg, run.setup.extra, run.cfg.env.max_episode_steps
