@@ -199,3 +199,67 @@ def test_taxi_init_from_warm_starts_and_refuses_the_batched_engine(tmp_path):
                  init_from=str(tmp_path / "first" / "model.pt"))
     with pytest.raises(ValueError, match=r"other settings for \['env.env_id', 'env.kwargs'\]"):
         train_taxi(other)
+
+
+def _stub_trainer(parts, params, lr=1.0):
+    """A trainer with what ClippedOptimizationStepper reads: a loss with forward_parts and an optimiser."""
+    from types import SimpleNamespace
+
+    from tensordict import TensorDict
+
+    class Loss:
+        tensor_keys = SimpleNamespace(agent="agent", expert="expert")
+        inverse_dynamics_loss = bc_loss = None
+
+        def forward_parts(self, td):
+            return {k: TensorDict(f(), []) for k, f in parts.items()}
+
+        def __call__(self, td):
+            out = TensorDict({}, [])
+            for p in self.forward_parts(td).values():
+                out.update(p)
+            return out
+
+    loss = Loss()
+    return SimpleNamespace(loss_module=loss, optimizer=torch.optim.SGD(params, lr=lr),
+                           compute_loss=lambda td: loss(td))
+
+
+def test_per_term_clip_keeps_the_bc_gradient_that_a_global_clip_scales_down():
+    """RL gradient 100, BC gradient 1, clip 1: one global clip leaves BC 1/101 of a step of 1;
+    clipped apart, each term moves the weight by up to 1 and the BC term keeps its whole step."""
+    from tensordict import TensorDict
+
+    from torchrl_hybrid.trainers.hybrid import ClippedOptimizationStepper
+
+    moves = {}
+    for clip in ("global", "per_term"):
+        w = torch.nn.Parameter(torch.zeros(1))
+        trainer = _stub_trainer({"rl": lambda: {"loss_objective": 100.0 * w.sum()},
+                                 "bc": lambda: {"loss_bc": 1.0 * w.sum()}}, [w])
+        out = ClippedOptimizationStepper(1.0, clip=clip).step(trainer, TensorDict({}, []))
+        moves[clip] = -float(w.detach())
+        if clip == "per_term":
+            assert float(out["grad_norm_rl"]) == pytest.approx(100.0) and float(out["grad_norm_bc"]) == pytest.approx(1.0)
+    assert moves["global"] == pytest.approx(1.0, abs=1e-5)    # 101 scaled to 1: BC's share is 1/101
+    assert moves["per_term"] == pytest.approx(2.0, abs=1e-5)  # RL clipped to 1, BC's 1 kept
+
+
+def test_extra_bc_and_inverse_model_updates_per_batch(tmp_path):
+    """loss.bc_updates=2, loss.idm_updates=1: the policy's parameters take 1 + 2 optimiser steps per
+    batch (the main one, then BC alone twice on fresh expert batches), the inverse model's 1 + 1; the
+    RL loss is never repeated."""
+    run = build_taxi(tiny(tmp_path, **{"loss": {"bc_updates": 2, "idm_updates": 1}}))
+    run.trainer.train()
+    updates = 640 // run.cfg.frames_per_batch
+    opt = run.trainer.optimizer
+    actor = {id(p) for p in run.actor.parameters()}
+    steps = {name: {int(opt.state[p]["step"]) for g in opt.param_groups for p in g["params"] if pick(g, p)}
+             for name, pick in (("actor", lambda g, p: id(p) in actor),
+                                ("critic", lambda g, p: g["name"] == "policy" and id(p) not in actor),
+                                ("inverse_model", lambda g, p: g["name"] == "inverse_model"))}
+    run.collector.shutdown()
+    run.lock.close()
+    assert steps == {"actor": {3 * updates}, "critic": {updates}, "inverse_model": {2 * updates}}
+    with pytest.raises(ValueError, match="loss.bc_updates must be >= 0"):
+        tiny(tmp_path / "bad", **{"loss": {"bc_updates": -1}}).validate()

@@ -80,8 +80,10 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
             out = Path(cfg.out_dir) / f"{variant}_s{seed}"
             if (out / "summary.json").exists():
                 continue
+            # a progress bar only where one run trains in this terminal, and only if the settings ask for it
+            bar = cfg.base.get("logger", {}).get("progress_bar", True) and cfg.workers == 1 and cfg.launcher == "local"
             jobs.append(merge_dicts(cfg.base, {"variant": variant, "seed": seed, "out_dir": str(out),
-                                          "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"}}))
+                                               "logger": {"progress_bar": bar}}))
     print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
     t0 = time.perf_counter()
     for out, secs in run_jobs(run_fn, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,

@@ -67,14 +67,20 @@ class HybridLoss(LossModule):
     def in_keys(self):
         return [self.tensor_keys.agent, self.tensor_keys.expert]
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        out = TensorDict({}, [])
-        parts = (
-            (self.rl_loss, self.tensor_keys.agent),
-            (self.inverse_dynamics_loss, self.tensor_keys.agent),
-            (self.bc_loss, self.tensor_keys.expert),
-        )
-        for loss, key in parts:
+    #: the component losses, by the name their outputs are grouped under in :meth:`forward_parts`
+    PARTS = ("rl", "inverse_model", "bc")
+
+    def forward_parts(self, tensordict: TensorDictBase) -> dict[str, TensorDictBase]:
+        """Each component's outputs on its own batch: ``{"rl": ..., "inverse_model": ...,
+        "bc": ...}`` (absent components left out). :meth:`forward` merges them; an optimiser
+        step that treats the terms apart (e.g. clips the BC gradient on its own) reads them
+        here."""
+        parts = {}
+        for name, loss, key in (
+            ("rl", self.rl_loss, self.tensor_keys.agent),
+            ("inverse_model", self.inverse_dynamics_loss, self.tensor_keys.agent),
+            ("bc", self.bc_loss, self.tensor_keys.expert),
+        ):
             if loss is None:
                 continue
             sub = tensordict.get(key, None)
@@ -85,7 +91,13 @@ class HybridLoss(LossModule):
                     f"{type(loss).__name__} needs the sub-tensordict {key!r}; the trainer's "
                     "ExpertBatchHook builds it (or pass TensorDict({'agent': ..., 'expert': ...}, []))."
                 )
-            for name, value in loss(sub).items():
+            parts[name] = loss(sub)
+        return parts
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        out = TensorDict({}, [])
+        for part in self.forward_parts(tensordict).values():
+            for name, value in part.items():
                 if name in out.keys():
                     raise RuntimeError(f"two component losses both return {name!r}")
                 out.set(name, value)

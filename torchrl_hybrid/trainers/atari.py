@@ -39,7 +39,7 @@ from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT
 __all__ = ["AtariConfig", "AtariFamily", "AtariRun", "atari_config", "build_atari", "train_atari", "evaluate_atari",
            "record_demos", "load_expert"]
 
-ATARI_VARIANTS = ("hybrid_dual", "hybrid_mlp", "bc_dual", "a2c")
+ATARI_VARIANTS = ("hybrid_dual", "hybrid_mlp", "bc_dual", "a2c", "hybrid_true")  # hybrid_true: the oracle diagnostic
 
 
 # The settings below are the Hydra schema of recipes/config/atari.yaml (torchrl_hybrid/configs.py):

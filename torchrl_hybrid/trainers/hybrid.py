@@ -8,7 +8,7 @@ from typing import Any
 
 import torch
 from torchrl.objectives import A2CLoss, ValueEstimators
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torchrl.checkpoint import Checkpoint
 from torchrl.trainers import OptimizationStepper, Trainer
@@ -23,7 +23,7 @@ from torchrl_hybrid.objectives import (
 )
 from torchrl_hybrid.utils.config import flatten_dict
 
-__all__ = ["ClippedOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
+__all__ = ["CLIP_MODES", "ClippedOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
            "make_hybrid_loss", "make_trainer", "resume_trainer"]
 
 
@@ -55,6 +55,10 @@ VARIANTS: dict[str, Variant] = {
         Variant("bc_dual", False, "inferred", "dual", "BC on actions inferred by the dual model, no RL signal"),
         Variant("bc_mlp", False, "inferred", "mlp", "BC on actions inferred by the MLP model, no RL signal"),
         Variant("il", False, "true", None, "BC on the TRUE expert actions (imitation learning upper bound)"),
+        # a diagnostic, never a way to train with real demos: the demos keep the expert's true actions
+        # only so that this arm can show how much any inverse model could give (oracle labels)
+        Variant("hybrid_true", True, "true", None,
+                "DIAGNOSTIC: A2C + BC on the expert's TRUE actions, the upper bound of any inverse model's labels"),
         Variant("a2c", True, None, None, "plain A2C, ignores the demonstrations"),
     )
 }
@@ -128,25 +132,51 @@ def make_hybrid_loss(
     return HybridLoss(rl_loss, idm_loss, bc_loss)
 
 
+CLIP_MODES = ("global", "per_group", "per_term")
+
+
 class ClippedOptimizationStepper(OptimizationStepper):
     """One optimiser step on the sum of the ``loss_*`` terms, with the gradient norm clipped
-    to ``max_norm``: over all parameters (``per_group=False``, TorchRL's default stepper does
-    the same), or for each optimiser parameter group on its own (``per_group=True``: e.g. the
-    policy's and the inverse model's, so that a large policy-gradient step does not shrink
-    the inverse model's update, as a single global clip would).
+    to ``max_norm``, then optional extra updates of the BC and inverse-model terms alone.
 
-    The norms before the clip are returned as ``grad_norm`` (or ``grad_norm_<group>``),
-    left on the device: unlike TorchRL's default stepper, which reads the norm with
-    ``float()``, no update waits for the device.
+    ``clip`` says what the clip applies to:
+
+    - ``"global"``: the gradient of the summed loss, over all parameters (what TorchRL's
+      default stepper does, and the authors' code);
+    - ``"per_group"``: each optimiser parameter group (the policy's, the inverse model's)
+      on its own, so that a large policy gradient does not shrink the inverse model's update;
+    - ``"per_term"``: each component loss of a :class:`~torchrl_hybrid.objectives.HybridLoss`
+      (the RL terms, the inverse model's, the BC term) is differentiated on its own, its
+      gradient clipped on its own, and the clipped gradients summed. With a global clip, a
+      BC gradient beside an RL gradient 10x larger is scaled down with it; here each term
+      keeps up to ``max_norm``. Costs one backward pass per component.
+
+    ``bc_updates`` / ``idm_updates`` (the update-to-data ratio of those terms): after the
+    main step, that many more optimiser steps on the BC loss alone (each on a fresh expert
+    batch from ``expert_batches``) and on the inverse-model loss alone (on the same agent
+    batch), each clipped to ``max_norm``. The RL loss is never repeated (it is on-policy).
+
+    The norms before the clip are returned as ``grad_norm`` (``grad_norm_<group>``,
+    ``grad_norm_<term>``), left on the device: unlike TorchRL's default stepper, which reads
+    the norm with ``float()``, no update waits for the device.
 
     Args:
         max_norm: the clip (``None``: no clip, the norm is still reported).
-        per_group: clip each parameter group separately.
+        clip: ``"global"`` | ``"per_group"`` | ``"per_term"``.
+        bc_updates: extra BC-only updates per collected batch.
+        idm_updates: extra inverse-model-only updates per collected batch.
+        expert_batches: a callable giving a fresh expert batch (needed with ``bc_updates``).
     """
 
-    def __init__(self, max_norm: float | None, per_group: bool = False):
+    def __init__(self, max_norm: float | None, clip: str = "global", *, bc_updates: int = 0, idm_updates: int = 0,
+                 expert_batches=None):
+        if clip not in CLIP_MODES:
+            raise ValueError(f"clip={clip!r}: choose one of {CLIP_MODES}")
+        if bc_updates < 0 or idm_updates < 0:
+            raise ValueError(f"bc_updates and idm_updates must be >= 0, got {bc_updates}, {idm_updates}")
         self.max_norm = None if max_norm is None else float(max_norm)
-        self.per_group = bool(per_group)
+        self.clip, self.bc_updates, self.idm_updates = clip, int(bc_updates), int(idm_updates)
+        self.expert_batches = expert_batches
 
     @staticmethod
     def _clip(params, max_norm: float | None) -> torch.Tensor:
@@ -155,17 +185,68 @@ class ClippedOptimizationStepper(OptimizationStepper):
             return nn.utils.clip_grad_norm_(params, max_norm).detach()
         return nn.utils.get_total_norm([p.grad for p in params]).detach()
 
-    def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
-        losses_td = trainer.compute_loss(sub_batch)
-        sum(v for k, v in losses_td.items() if k.startswith("loss")).backward()
-        groups = trainer.optimizer.param_groups
-        if self.per_group:
-            for i, group in enumerate(groups):
-                losses_td[f"grad_norm_{group.get('name', i)}"] = self._clip(group["params"], self.max_norm)
-        else:
-            losses_td["grad_norm"] = self._clip([p for g in groups for p in g["params"]], self.max_norm)
+    @staticmethod
+    def _params(trainer: Trainer) -> list[torch.Tensor]:
+        return [p for g in trainer.optimizer.param_groups for p in g["params"]]
+
+    def _backward_per_term(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
+        loss_module = trainer.loss_module
+        if not hasattr(loss_module, "forward_parts"):
+            raise TypeError(f"clip=per_term needs a HybridLoss (forward_parts), got {type(loss_module).__name__}")
+        parts = loss_module.forward_parts(sub_batch)
+        params = self._params(trainer)
+        terms = {name: sum(v for k, v in td.items() if k.startswith("loss")) for name, td in parts.items()}
+        terms = {name: t for name, t in terms.items() if isinstance(t, torch.Tensor) and t.requires_grad}
+        out = TensorDict({}, [])
+        for td in parts.values():
+            out.update(td)
+        names = list(terms)
+        for i, name in enumerate(names):
+            grads = torch.autograd.grad(terms[name], params, retain_graph=i < len(names) - 1, allow_unused=True)
+            used = [g for g in grads if g is not None]
+            norm = nn.utils.get_total_norm(used) if used else torch.zeros(())
+            scale = 1.0 if self.max_norm is None else (self.max_norm / (norm + 1e-6)).clamp(max=1.0)
+            for p, g in zip(params, grads):
+                if g is None:
+                    continue
+                g = g * scale
+                p.grad = g if p.grad is None else p.grad + g
+            out[f"grad_norm_{name}"] = norm.detach()
+        return out
+
+    def _extra_step(self, trainer: Trainer, loss: torch.Tensor) -> None:
+        loss.backward()
+        self._clip(self._params(trainer), self.max_norm)
         trainer.optimizer.step()
         trainer.optimizer.zero_grad()
+
+    def step(self, trainer: Trainer, sub_batch: TensorDictBase) -> TensorDictBase:
+        if self.clip == "per_term":
+            losses_td = self._backward_per_term(trainer, sub_batch)
+        else:
+            losses_td = trainer.compute_loss(sub_batch)
+            sum(v for k, v in losses_td.items() if k.startswith("loss")).backward()
+            groups = trainer.optimizer.param_groups
+            if self.clip == "per_group":
+                for i, group in enumerate(groups):
+                    losses_td[f"grad_norm_{group.get('name', i)}"] = self._clip(group["params"], self.max_norm)
+            else:
+                losses_td["grad_norm"] = self._clip(self._params(trainer), self.max_norm)
+        trainer.optimizer.step()
+        trainer.optimizer.zero_grad()
+        loss_module = trainer.loss_module
+        if self.idm_updates and getattr(loss_module, "inverse_dynamics_loss", None) is not None:
+            agent = sub_batch.get(loss_module.tensor_keys.agent, sub_batch)
+            for _ in range(self.idm_updates):
+                out = loss_module.inverse_dynamics_loss(agent)
+                self._extra_step(trainer, sum(v for k, v in out.items() if k.startswith("loss")))
+        if self.bc_updates and getattr(loss_module, "bc_loss", None) is not None:
+            if self.expert_batches is None:
+                raise RuntimeError("bc_updates > 0 needs expert_batches (attach_demonstrations sets it)")
+            for _ in range(self.bc_updates):
+                out = loss_module.bc_loss(self.expert_batches())
+                if out["loss_bc"].requires_grad:  # an empty expert batch (rho=visited) gives a constant 0
+                    self._extra_step(trainer, out["loss_bc"])
         return losses_td.detach()
 
 
@@ -181,21 +262,24 @@ def make_trainer(
     save_trainer_file=None,
     save_trainer_interval: int = 10**9,
     seed: int | None = None,
-    clip_per_group: bool = False,
+    clip: str = "global",
     frame_skip: int = 1,
+    bc_updates: int = 0,
+    idm_updates: int = 0,
 ) -> Trainer:
     """A TorchRL ``Trainer`` with one optimisation step per collected batch.
 
-    The step is a :class:`ClippedOptimizationStepper`: with ``clip_per_group`` each
-    optimiser parameter group's gradient is clipped to ``clip_norm`` on its own, otherwise
-    the global norm is (as TorchRL's default stepper does, without its device sync).
+    The step is a :class:`ClippedOptimizationStepper`: ``clip`` = ``"global"`` clips the
+    norm of the whole gradient (as TorchRL's default stepper does, without its device sync),
+    ``"per_group"`` each optimiser parameter group's, ``"per_term"`` each component loss's;
+    ``bc_updates`` / ``idm_updates`` add BC-only / inverse-model-only updates per batch.
     TorchRL's own per-update log of the losses (``auto_log_optim_steps``, a list that
     grows by one entry per update and is never emptied) is off: the learning curve
     (:class:`~torchrl_hybrid.trainers.hooks.MetricsHook`) logs them. With ``frame_skip`` > 1 the
     trainer counts game frames (``frame_skip`` per env step), and ``total_frames``
     is in game frames too.
     """
-    stepper = ClippedOptimizationStepper(clip_norm, per_group=clip_per_group and clip_norm is not None)
+    stepper = ClippedOptimizationStepper(clip_norm, clip=clip, bc_updates=bc_updates, idm_updates=idm_updates)
     return Trainer(
         collector=collector,
         total_frames=total_frames,

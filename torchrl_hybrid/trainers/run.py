@@ -55,7 +55,7 @@ __all__ = ["RunConfig", "LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig
 
 LOGGERS = ("csv", "tensorboard", "wandb", "none")
 BC_LABELS = ("argmax", "soft")
-CLIPS = ("global", "per_group")
+CLIPS = ("global", "per_group", "per_term")
 WARMUP_UPDATES = 100  # optim.warmup_frames=None with init_from: the lr warm-up lasts this many updates
 
 
@@ -87,6 +87,11 @@ class LossConfig:
     # linearly from bc_coeff to 0 over this many frames (OURS: annealing, so that the RL signal takes over from
     # labels that are only partly right; 0 = constant, the paper)
     bc_anneal_frames: int = 0
+    # The objective's balance (OURS; 0 = the paper's one update of every term per collected batch):
+    # after that update, this many more updates of the BC term alone (each on a fresh expert batch) ...
+    bc_updates: int = 0
+    # ... and of the inverse model's loss alone (on the same agent batch); the RL loss is never repeated
+    idm_updates: int = 0
 
     def validate(self) -> None:
         _need(self.n_steps >= 1, f"loss.n_steps must be >= 1, got {self.n_steps}")
@@ -97,6 +102,8 @@ class LossConfig:
               f"loss.bc_ready_accuracy must be in [0, 1], got {self.bc_ready_accuracy}")
         _need(self.bc_start_frames >= 0, f"loss.bc_start_frames must be >= 0, got {self.bc_start_frames}")
         _need(self.bc_anneal_frames >= 0, f"loss.bc_anneal_frames must be >= 0, got {self.bc_anneal_frames}")
+        _need(self.bc_updates >= 0, f"loss.bc_updates must be >= 0, got {self.bc_updates}")
+        _need(self.idm_updates >= 0, f"loss.idm_updates must be >= 0, got {self.idm_updates}")
 
     def loss_kwargs(self) -> dict[str, Any]:
         """The keyword arguments of :func:`~torchrl_hybrid.trainers.hybrid.make_hybrid_loss`."""
@@ -115,8 +122,10 @@ class OptimConfig(RMSpropConfig):
     eps: float = 1e-5
     alpha: float = 0.99
     max_grad_norm: float = 0.5  # gradient-norm clip, authors' code
-    # global = one clip over all parameters (TorchRL's default stepper);
-    # per_group = policy and inverse model clipped separately (OURS, optional)
+    # global = one clip over all parameters (TorchRL's default stepper, the authors' code);
+    # per_group = policy and inverse model clipped separately (OURS, optional);
+    # per_term = the RL, inverse-model and BC losses each differentiated and clipped on their own, then
+    # summed, so that a large RL gradient does not scale the BC term down with it (OURS, optional)
     clip: str = "global"
     # lr rises linearly from 0 over this many frames (LRWarmupHook); None = auto: 100 updates' frames with
     # init_from (a fresh RMSprop's first steps on trained weights are up to 10x lr), else 0 (the authors': none)
@@ -432,7 +441,7 @@ def build_run(cfg, family: EnvFamily) -> Run:
             clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
             save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
             save_trainer_interval=max(cfg.total_frames // family.checkpoints_per_run, frames_per_batch),
-            clip_per_group=cfg.optim.clip == "per_group", frame_skip=skip,
+            clip=cfg.optim.clip, frame_skip=skip, bc_updates=cfg.loss.bc_updates, idm_updates=cfg.loss.idm_updates,
         )
         run = Run(cfg, family, variant, setup, trainer, collector, nets.actor, nets.critic, nets.encoder, inverse_model,
                   policy, loss, None, out, device, 0, lock)
@@ -451,11 +460,13 @@ def build_run(cfg, family: EnvFamily) -> Run:
                           policy_weights_getter=worker_weights_getter(policy)).register(trainer)
         if variant.bc is not None:
             lc = cfg.loss
-            attach_demonstrations(trainer, loss, setup.demos, sampler=family.sampler(cfg, setup),
+            expert_buffer = attach_demonstrations(trainer, loss, setup.demos, sampler=family.sampler(cfg, setup),
                                   batch_size=cfg.demo.batch_size, bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
                                   bc_ready_accuracy=lc.bc_ready_accuracy, bc_anneal_frames=lc.bc_anneal_frames,
                                   include_expert_actions=variant.bc == "true",
                                   device=device)
+            # loss.bc_updates: the extra BC-only updates draw their expert batches from the same buffer
+            trainer.optimization_stepper.expert_batches = lambda: expert_buffer.sample(cfg.demo.batch_size)
         run.metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, family.evaluator(run),
                                   pbar_keys=family.pbar_keys, return_key=family.return_key)
         run.metrics.register(trainer)
