@@ -6,7 +6,9 @@ curve file, figure, table and README in ``out_dir``.
     python recipes/compare.py --config-name frozenlake8x8 out_dir=results/frozenlake_8x8/torchrl
 
 The run settings are those of recipes/train.py (recipes/config/taxi.yaml and its presets);
-``+compare.variants=[...]`` (default [a2c, hybrid_dual]), ``+compare.seeds=[...]``
+``+compare.variants=[...]`` (default [a2c, hybrid_dual]; variants or named arms, GYM_ARMS in
+torchrl_hybrid/experiments/gym_compare.py, e.g. hybrid_dual_clip_apart), ``+compare.arms={name:
+{variant: ..., base: ..., <settings>}}`` (arms of your own), ``+compare.seeds=[...]``
 (default [0, 1, 2]) and ``+compare.workers=N`` (default 2) choose the runs;
 ``+compare.launcher=ray`` runs them as Ray tasks (``+compare.address=<cluster>`` joins an
 existing cluster; without it a local one starts). Finished runs are kept; an interrupted
@@ -37,7 +39,7 @@ def main(cfg: DictConfig) -> None:
     in_process = options.get("workers", 2) == 1 and options.get("launcher", "local") == "local"
     configure_process(raw.get("threads") if in_process else None)  # workers=1: the runs train here
     try:
-        known = ("variants", "seeds", "workers", "launcher", "address", "max_retries")
+        known = ("variants", "arms", "seeds", "workers", "launcher", "address", "max_retries")
         unknown = set(options) - set(known)
         if unknown:
             raise ValueError(f"unknown compare option(s) {sorted(unknown)}; known: {', '.join(known)}")

@@ -809,7 +809,7 @@ def test_every_named_arm_is_a_valid_atari_config():
     for name in ROBUST_ARMS:  # each a hybrid that differs from the paper's agent, with settings that validate
         variant, overrides = cfg.arm(name)
         built = atari_config({**overrides, "variant": variant, "demo": {"path": "demos"}}).validate()
-        assert variant == "hybrid_dual" and built != paper, name
+        assert variant in ("hybrid_dual", "hybrid_true") and built != paper, name
     ready = atari_config({**cfg.arm("hybrid_dual_ready_anneal")[1], "demo": {"path": "demos"}})
     assert (ready.loss.bc_ready_accuracy, ready.loss.bc_anneal_frames) == (0.4, 2_000_000)
 

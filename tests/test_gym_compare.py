@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from torchrl_hybrid.experiments.gym_compare import GymCompareConfig, run_gym_compare
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,3 +38,33 @@ def test_compare_command_line_refuses_unknown_options(tmp_path):
            f"out_dir={tmp_path}", "+compare.nope=1"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "unknown compare option(s) ['nope']" in r.stderr
+
+
+def test_frames_to_the_expert_are_measured_from_the_random_policy_up():
+    from torchrl_hybrid.experiments.gym_compare import random_policy_return, reach_threshold
+
+    assert reach_threshold(-500.0, -176.0, 0.9) == pytest.approx(-208.4)  # not 0.9 x -176 = -158.4
+    assert reach_threshold(22.0, 500.0, 0.9) == pytest.approx(452.2)
+    assert 15 < random_policy_return("CartPole-v1", {}, 500, episodes=20) < 30  # the random policy's ~22
+
+
+def test_named_and_own_arms_run_with_their_settings_and_against_their_base(tmp_path):
+    cfg = GymCompareConfig(base=FROZEN, variants=["hybrid_dual", "hybrid_dual_clip_apart", "mine"], seeds=[0, 1],
+                           arms={"mine": {"variant": "hybrid_dual", "base": "hybrid_dual", "demo": {"batch_size": 8}}},
+                           out_dir=str(tmp_path), workers=1)
+    result = run_gym_compare(cfg)
+    settings = {a: json.loads((tmp_path / f"{a}_s0" / "config.json").read_text()) for a in cfg.variants}
+    assert settings["hybrid_dual_clip_apart"]["optim"]["clip"] == "per_term"
+    assert settings["mine"]["demo"]["batch_size"] == 8 and settings["mine"]["variant"] == "hybrid_dual"
+    assert settings["hybrid_dual"]["optim"]["clip"] == "global"
+    rows = {t["variant"]: t for t in result["table"]}
+    assert rows["mine"]["option_effect"].startswith("auc − hybrid_dual: ")
+    assert rows["hybrid_dual"]["idm_accuracy_expert_end"] != "" and rows["hybrid_dual"]["entropy_end"] != ""
+    assert result["threshold"] == pytest.approx(result["random_return"] + 0.9 * (1.0 - result["random_return"]))
+    for bad, match in ((["nope"], "unknown variant or arm 'nope'"),):
+        with pytest.raises(ValueError, match=match):
+            GymCompareConfig(base=FROZEN, variants=bad, out_dir=str(tmp_path)).validate()
+    with pytest.raises(ValueError, match="is a variant's name"):
+        GymCompareConfig(base=FROZEN, arms={"a2c": {"variant": "a2c"}}, out_dir=str(tmp_path)).validate()
+    with pytest.raises(ValueError, match="must be a mapping with variant"):
+        GymCompareConfig(base=FROZEN, arms={"x": {"variant": "ppo"}}, out_dir=str(tmp_path)).validate()

@@ -1,3 +1,5 @@
+import math
+
 import pytest
 import torch
 import torch.nn.functional as F
@@ -282,3 +284,50 @@ def test_a_tensordict_module_wrapped_inverse_model_is_accepted_and_names_its_key
         InverseDynamicsLoss(torch.nn.Linear(3, 4))
     with pytest.raises(ValueError, match="exactly two in_keys"):
         InverseDynamicsLoss(TensorDictModule(idm, in_keys=["s"], out_keys=["x"]))
+
+
+def test_prior_corrected_labels_undo_the_inverse_models_echo_of_the_agents_policy():
+    """A known case: from state 0, (s, s') is twice as likely under action 1 as under action 0
+    (P(s'|s,a) = [1, 2]), but the agent takes action 0 90 % of the time, so an inverse model
+    fitted to its transitions says P_i = [0.9, 0.2] / 1.1: the paper's label is action 0, the
+    agent's own favourite. Divided by pi and renormalised, P_i = [1, 2] / 3: action 1."""
+    from tensordict.nn import TensorDictModule
+    from torch import nn
+    from torchrl.modules import ProbabilisticActor
+
+    from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
+
+    pi = torch.tensor([0.9, 0.1])
+    head = nn.Linear(1, 2)
+    with torch.no_grad():
+        head.weight.zero_()
+        head.bias.copy_(pi.log())
+    actor = ProbabilisticActor(TensorDictModule(head, in_keys=["observation"], out_keys=["logits"]),
+                               in_keys=["logits"], distribution_class=torch.distributions.Categorical)
+
+    class Echo(InverseDynamicsModel):  # P_i = P(s'|s,a) pi(a|s), normalised
+        def __init__(self):
+            nn.Module.__init__(self)
+            self.n_actions = 2
+
+        def action_logits(self, obs, next_obs):
+            p = torch.tensor([1.0, 2.0]) * pi
+            return (p / p.sum()).log().expand(obs.shape[0], 2)
+
+    td = TensorDict({"observation": torch.zeros(4, 1), ("next", "observation"): torch.ones(4, 1)}, [4])
+    paper = ExpertBCLoss(actor, Echo(), bc_coeff=1.0)
+    paper(td)
+    assert td["inferred_action"].tolist() == [0, 0, 0, 0]
+    corrected = ExpertBCLoss(actor, Echo(), bc_coeff=1.0, prior_floor=0.05)
+    out = corrected(td)
+    assert td["inferred_action"].tolist() == [1, 1, 1, 1]
+    assert float(out["loss_bc"]) == pytest.approx(-math.log(0.1), rel=1e-5)  # cloning action 1 under pi
+    soft = ExpertBCLoss(actor, Echo(), bc_coeff=1.0, labels="soft", prior_floor=0.05)(td)
+    expected = -(torch.tensor([1 / 3, 2 / 3]) * pi.log()).sum()
+    assert float(soft["loss_bc"]) == pytest.approx(float(expected), rel=1e-5)
+    # the floor bounds the boost of an action the policy almost never takes
+    assert ExpertBCLoss(actor, Echo(), prior_floor=0.5).prior_floor == 0.5
+    with pytest.raises(ValueError, match="prior_floor=1.5 must be in"):
+        ExpertBCLoss(actor, Echo(), prior_floor=1.5)
+    with pytest.raises(ValueError, match="need an inverse model"):
+        ExpertBCLoss(actor, None, prior_floor=0.05)

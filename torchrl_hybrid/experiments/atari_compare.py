@@ -55,6 +55,11 @@ ROBUST_ARMS: dict[str, dict] = {
     "hybrid_dual_soft_anneal_own": {"variant": "hybrid_dual", "base": "hybrid_dual_soft_anneal",
                                     "idm_encoder": "own", "optim": {"clip": "per_group"},
                                     "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
+    # issue 32's options: labels with the agent's own policy divided out (they do not echo it) ...
+    "hybrid_dual_prior": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_prior_floor": 0.05}},
+    # ... and the BC gradient clipped apart from the RL gradient, with true and with inferred labels
+    "hybrid_dual_clip_apart": {"variant": "hybrid_dual", "base": "hybrid_dual", "optim": {"clip": "per_term"}},
+    "hybrid_true_clip_apart": {"variant": "hybrid_true", "base": "hybrid_true", "optim": {"clip": "per_term"}},
 }
 
 

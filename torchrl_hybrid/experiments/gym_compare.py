@@ -21,7 +21,22 @@ from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
-__all__ = ["GymCompareConfig", "run_gym_compare", "analyse_gym_compare"]
+__all__ = ["GymCompareConfig", "GYM_ARMS", "run_gym_compare", "analyse_gym_compare", "random_policy_return",
+           "reach_threshold"]
+
+#: named arms of the gymnasium comparison: a variant with settings over the comparison's base, each
+#: measured against the arm it changes (``base``). User arms go beside them (``+compare.arms``).
+GYM_ARMS: dict[str, dict] = {
+    # the objective's balance (issue 32): the BC gradient clipped apart from the RL gradient
+    "hybrid_dual_clip_apart": {"variant": "hybrid_dual", "base": "hybrid_dual", "optim": {"clip": "per_term"}},
+    "hybrid_true_clip_apart": {"variant": "hybrid_true", "base": "hybrid_true", "optim": {"clip": "per_term"}},
+    # more BC and inverse-model updates per collected batch
+    "hybrid_dual_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_updates": 4, "idm_updates": 4}},
+    # a larger BC batch
+    "hybrid_dual_bc128": {"variant": "hybrid_dual", "base": "hybrid_dual", "demo": {"batch_size": 128}},
+    # labels that do not echo the agent: the inverse model's prior (the agent's policy) divided out
+    "hybrid_dual_prior": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_prior_floor": 0.05}},
+}
 
 
 @dataclass
@@ -32,7 +47,9 @@ class GymCompareConfig:
     checkpoint but no summary resumes from it."""
 
     base: dict = field(default_factory=dict)
-    variants: Sequence[str] = ("a2c", "hybrid_dual")
+    variants: Sequence[str] = ("a2c", "hybrid_dual")  # variants (trainers/hybrid.py) or arms (GYM_ARMS, arms)
+    # more named arms: name -> {variant: ..., base: <arm or variant it changes>, <TaxiConfig overrides>}
+    arms: dict = field(default_factory=dict)
     seeds: Sequence[int] = (0, 1, 2)
     out_dir: str = "results/compare"
     workers: int = 2
@@ -41,11 +58,36 @@ class GymCompareConfig:
     max_retries: int = 2        # ray: how often a run whose worker died is started again
     command: str = ""  # the command line that made this comparison, for the README
 
-    def validate(self) -> "GymCompareConfig":
-        from torchrl_hybrid.trainers.hybrid import get_variant
+    @property
+    def all_arms(self) -> dict[str, dict]:
+        return {**GYM_ARMS, **self.arms}
 
+    def run_settings(self, name: str) -> dict:
+        """The settings an arm or variant adds to ``base`` (its variant included)."""
+        spec = self.all_arms.get(name)
+        if spec is None:
+            return {"variant": name}
+        return {k: v for k, v in spec.items() if k != "base"}
+
+    def validate(self) -> "GymCompareConfig":
+        from torchrl_hybrid.trainers.hybrid import VARIANTS, get_variant
+
+        for name, spec in self.arms.items():
+            if name in VARIANTS:
+                raise ValueError(f"arms.{name}: {name!r} is a variant's name; give the arm another name")
+            if not isinstance(spec, dict) or spec.get("variant") not in VARIANTS:
+                raise ValueError(f"arms.{name} must be a mapping with variant: one of {list(VARIANTS)} "
+                                 f"(and settings over the base), got {spec!r}")
+            base = spec.get("base")
+            if base is not None and base not in set(VARIANTS) | set(self.all_arms):
+                raise ValueError(f"arms.{name}.base={base!r} is neither a variant nor an arm")
         for v in self.variants:
-            get_variant(v)
+            if v not in self.all_arms:
+                try:
+                    get_variant(v)
+                except ValueError:
+                    raise ValueError(f"unknown variant or arm {v!r}; variants: {', '.join(VARIANTS)}; arms: "
+                                     f"{', '.join(self.all_arms)}") from None
         if self.workers < 1:
             raise ValueError(f"compare.workers must be >= 1, got {self.workers}")
         if not self.seeds:
@@ -54,6 +96,37 @@ class GymCompareConfig:
             raise ValueError(f"compare.launcher={self.launcher!r}: choose one of {LAUNCHERS}")
         return self
 
+
+
+def random_policy_return(env_id: str, kwargs: dict | None = None, max_steps: int = 500, episodes: int = 100,
+                         seed: int = 0) -> float:
+    """Mean undiscounted return of the uniformly random policy over ``episodes`` episodes,
+    each cut at ``max_steps`` (the floor that "X % of the expert" is measured from)."""
+    import gymnasium as gym
+
+    env = gym.make(env_id, max_episode_steps=max_steps, **(kwargs or {}))
+    env.action_space.seed(seed)
+    total = 0.0
+    for i in range(episodes):
+        env.reset(seed=seed + i)
+        done = False
+        while not done:
+            _, r, term, trunc, _ = env.step(env.action_space.sample())
+            total += float(r)
+            done = term or trunc
+    env.close()
+    return total / episodes
+
+
+#: the share of the way from the random policy's return to the expert's that "frames to X %" asks for
+REACH = 0.9
+
+
+def reach_threshold(random_return: float, expert_return: float, share: float = REACH) -> float:
+    """The return ``share`` of the way from the random policy's to the expert's: right for
+    negative returns too (``share`` x the expert's return is not: 95 % of Acrobot's -176 is
+    -167, a better score than the expert's own)."""
+    return random_return + share * (expert_return - random_return)
 
 
 def run_one(d: dict) -> tuple[str, float]:
@@ -82,8 +155,8 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
                 continue
             # a progress bar only where one run trains in this terminal, and only if the settings ask for it
             bar = cfg.base.get("logger", {}).get("progress_bar", True) and cfg.workers == 1 and cfg.launcher == "local"
-            jobs.append(merge_dicts(cfg.base, {"variant": variant, "seed": seed, "out_dir": str(out),
-                                               "logger": {"progress_bar": bar}}))
+            jobs.append(merge_dicts(merge_dicts(cfg.base, cfg.run_settings(variant)),
+                                    {"seed": seed, "out_dir": str(out), "logger": {"progress_bar": bar}}))
     print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
     t0 = time.perf_counter()
     for out, secs in run_jobs(run_fn, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
@@ -107,18 +180,19 @@ def _load(cfg: GymCompareConfig) -> dict[str, list[dict]]:
     return runs
 
 
-def _ci_text(x: np.ndarray) -> str:
+def _ci_text(x: np.ndarray, digits: int = 2) -> str:
     if len(x) < 3:
-        return f"{np.mean(x):.2f}"
+        return f"{np.mean(x):.{digits}f}"
     m, lo, hi = mean_ci(x)
-    return f"{m:.2f} [{lo:.2f}, {hi:.2f}]"
+    return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
 def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None) -> dict[str, Any]:
     """Per variant: the greedy-return curves, ``auc`` (mean greedy return over the logged
-    points), ``final`` (the end-of-run greedy return), frames until 95 % of the expert's
-    return; each variant against the first with a bootstrap interval and a permutation
-    p-value. Writes ``curves.csv``, ``summary.csv``, ``comparison.png``, ``README.md``."""
+    points), ``final`` (the end-of-run greedy return), frames until 90 % of the way from the random
+    policy's return to the expert's (:func:`reach_threshold`), the inverse model's accuracy on the
+    expert pairs and the policy's entropy at the end; each variant against the first, and each
+    named arm against the arm it changes, with a bootstrap interval and a permutation p-value. Writes ``curves.csv``, ``summary.csv``, ``comparison.png``, ``README.md``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -131,15 +205,21 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
     optimal = [r["summary"]["optimal_return"] for rs in runs.values() for r in rs
                if r["summary"]["optimal_return"] is not None]
     optimal = float(np.mean(optimal)) if optimal else None
+    env_cfg = {**{"env_id": "Taxi-v4", "kwargs": {}, "max_episode_steps": 50}, **cfg.base.get("env", {})}
+    random_return = random_policy_return(env_cfg["env_id"], env_cfg["kwargs"], env_cfg["max_episode_steps"])
+    # "X % of the expert" from the random policy's return up (right for negative returns too: 95 % of
+    # Acrobot's -176 is -167, better than the expert; 90 % of the way from -500 to -176 is -208)
+    threshold = None if optimal is None else reach_threshold(random_return, optimal)
     stats: dict[str, dict] = {}
     with open(out / "curves.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["variant", "seed", "frames", "eval_return", "return_mean", IDM_ACCURACY_EXPERT])
+        w.writerow(["variant", "seed", "frames", "eval_return", "return_mean", IDM_ACCURACY_EXPERT, "entropy"])
         for variant, rs in runs.items():
             for r in rs:
                 for row in r["rows"]:
                     w.writerow([variant, r["seed"], int(row["frames"]), row.get("eval_return", math.nan),
-                                row.get("return_mean", math.nan), row.get(IDM_ACCURACY_EXPERT, "")])
+                                row.get("return_mean", math.nan), row.get(IDM_ACCURACY_EXPERT, ""),
+                                row.get("entropy", "")])
     has_acc = any(not math.isnan(row.get(IDM_ACCURACY_EXPERT, math.nan)) for rs in runs.values() for r in rs
                   for row in r["rows"])
     fig, axes = plt.subplots(1, 2 if has_acc else 1, figsize=(12 if has_acc else 6.5, 4.2), squeeze=False)
@@ -149,10 +229,18 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
         ev = np.array([[row["eval_return"] for row in r["rows"][:n]] for r in rs])
         reach = []
         for c in ev:
-            hit = np.nonzero(c >= 0.95 * optimal)[0] if optimal is not None else []
+            hit = np.nonzero(c >= threshold)[0] if threshold is not None else []
             reach.append(float(frames[hit[0]]) if len(hit) else math.nan)
+
+        def last(r, key):
+            vals = [row[key] for row in r["rows"] if not math.isnan(row.get(key, math.nan))]
+            return vals[-1] if vals else math.nan
+
         stats[variant] = {"seeds": [r["seed"] for r in rs], "auc": ev.mean(1),
                           "final": np.array([r["summary"]["final_return"] for r in rs]), "reach": np.array(reach),
+                          "budget": float(frames[-1]),
+                          "idm_acc": np.array([last(r, IDM_ACCURACY_EXPERT) for r in rs]),
+                          "entropy": np.array([last(r, "entropy") for r in rs]),
                           "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs]))}
         ax = axes[0, 0]
         for c in ev:
@@ -168,6 +256,7 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
     ax = axes[0, 0]
     if optimal is not None:
         ax.axhline(optimal, color="k", ls="--", lw=1, label=f"expert {optimal:.2f}")
+        ax.axhline(threshold, color="k", ls=":", lw=1, label=f"{REACH:.0%} of the way from random {random_return:.1f}")
     ax.set(xlabel="frames", ylabel="greedy return", title=f"{env_name}: mean (thick) and each seed (thin)")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
@@ -181,19 +270,28 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
     plt.close(fig)
 
     ref = cfg.variants[0] if cfg.variants[0] in stats else next(iter(stats))
+    pct = f"{REACH:.0%}"
     table = []
     for variant, s in stats.items():
+        # frames to the threshold, a seed that never reached it counted as the whole budget (a lower bound)
+        censored = np.where(np.isfinite(s["reach"]), s["reach"], s["budget"])
         row = {"variant": variant, "seeds": len(s["seeds"]), "auc": _ci_text(s["auc"]),
                "final": _ci_text(s["final"]),
-               "reached_95pct": f"{int(np.isfinite(s['reach']).sum())}/{len(s['reach'])}",
-               "median_frames_to_95pct": "" if not np.isfinite(s["reach"]).any()
-               else f"{np.nanmedian(s['reach']):.0f}",
+               "reached": f"{int(np.isfinite(s['reach']).sum())}/{len(s['reach'])}",
+               "frames_to_reach": _ci_text(censored, digits=0) if threshold is not None else "",
+               "idm_accuracy_expert_end": "" if np.isnan(s["idm_acc"]).all() else f"{np.nanmean(s['idm_acc']):.2f}",
+               "entropy_end": "" if np.isnan(s["entropy"]).all() else f"{np.nanmean(s['entropy']):.2f}",
                "auc_per_seed": [round(float(x), 2) for x in s["auc"]],
                "final_per_seed": [round(float(x), 2) for x in s["final"]],
                "frames_per_s": round(s["frames_per_s"], 1)}
         if variant != ref and min(len(s["auc"]), len(stats[ref]["auc"])) >= 2:
             d, lo, hi = mean_diff_ci(s["auc"], stats[ref]["auc"])
             row[f"auc_minus_{ref}"] = f"{d:+.2f} [{lo:+.2f}, {hi:+.2f}], p = {permutation_p(s['auc'], stats[ref]['auc']):.3f}"
+        base = cfg.all_arms.get(variant, {}).get("base")
+        if base in stats and min(len(s["auc"]), len(stats[base]["auc"])) >= 2:
+            d, lo, hi = mean_diff_ci(s["auc"], stats[base]["auc"])
+            row["option_effect"] = (f"auc − {base}: {d:+.2f} [{lo:+.2f}, {hi:+.2f}], "
+                                    f"p = {permutation_p(s['auc'], stats[base]['auc']):.3f}")
         table.append(row)
     with open(out / "summary.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=sorted({k for t in table for k in t}, key=lambda k: list(table[0]).index(k)
@@ -206,21 +304,25 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
                                                if wall_time_s else ""), ""]
     lines += ["Greedy return of the policy (mode of its distribution) on fresh episodes at every logged point; "
               "`auc` is its mean over the logged points, `final` the greedy return at the end of the run, "
-              "`reached 95 %` the seeds whose greedy return reached 95 % of the expert's "
-              + (f"({0.95 * optimal:.2f}; the expert's own greedy return is {optimal:.2f})" if optimal is not None
-                 else "(no expert return: none was given)")
-              + ". Intervals: bootstrap 95 % over seeds (3 or more seeds); differences against "
-              f"`{ref}` with a permutation-test p-value.", "",
-              "| variant | seeds | auc | final | reached 95 % | median frames to 95 % | auc − " + ref + " |",
-              "|---|---|---|---|---|---|---|"]
+              f"`reached` the seeds whose greedy return reached {pct} of the way from the random policy's return "
+              f"({random_return:.2f}) to the expert's"
+              + (f" ({optimal:.2f}): {threshold:.2f}" if optimal is not None else " (no expert return: none was given)")
+              + f"; `frames to {pct}` their mean, a seed that never reached it counted as the whole budget "
+              "(so a lower bound). `IDM acc.` is the inverse model's accuracy on the expert pairs at the end (where "
+              "the demos keep the true actions), `entropy` the policy's at the end (a collapse shows as ~0). "
+              "Intervals: bootstrap 95 % over seeds (3 or more seeds); differences against "
+              f"`{ref}`, and each named arm against the arm it changes, with a permutation-test p-value.", "",
+              f"| arm | seeds | auc | final | reached | frames to {pct} | IDM acc. | entropy | auc − {ref} | option |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for t in table:
-        lines.append(f"| {t['variant']} | {t['seeds']} | {t['auc']} | {t['final']} | {t['reached_95pct']} | "
-                     f"{t['median_frames_to_95pct'] or '-'} | {t.get(f'auc_minus_{ref}', '-')} |")
+        lines.append(f"| {t['variant']} | {t['seeds']} | {t['auc']} | {t['final']} | {t['reached']} | "
+                     f"{t['frames_to_reach'] or '-'} | {t['idm_accuracy_expert_end'] or '-'} | {t['entropy_end'] or '-'} | "
+                     f"{t.get(f'auc_minus_{ref}', '-')} | {t.get('option_effect', '-')} |")
     lines += ["", "![comparison](comparison.png)", "",
               "Files: `curves.csv` (every logged point of every run), `summary.csv`, and each run's folder "
               "(`metrics.csv`, `summary.json`, `config.json`, `learning_curve.png`)."]
     (out / "README.md").write_text("\n".join(lines) + "\n")
     for t in table:
-        print(f"{t['variant']:12s} seeds {t['seeds']}  auc {t['auc']}  final {t['final']}  reached 95 % "
-              f"{t['reached_95pct']}  {t.get(f'auc_minus_{ref}', '')}")
-    return {"table": table, "optimal": optimal}
+        print(f"{t['variant']:12s} seeds {t['seeds']}  auc {t['auc']}  final {t['final']}  reached {pct} "
+              f"{t['reached']}  {t.get(f'auc_minus_{ref}', '')}")
+    return {"table": table, "optimal": optimal, "random_return": random_return, "threshold": threshold}

@@ -45,6 +45,14 @@ class ExpertBCLoss(LossModule):
         entropy_floor: adds ``bc_coeff * relu(entropy_floor - H(pi(.|s)))`` on the
             expert states, so that cloning near-constant labels cannot collapse the
             policy's entropy below the floor (0: off).
+        prior_floor: > 0 corrects the labels for the agent's own policy (0: off, the
+            paper). Trained on the agent's transitions, the inverse model learns
+            ``P_i(a | s, s') ∝ P(s' | s, a) pi(a | s)``: the agent's policy is its prior, so
+            where ``(s, s')`` says little the label is the agent's own favourite action,
+            and cloning it sharpens the policy further. Corrected, ``P_i(a | s, s') /
+            max(pi(a | s), prior_floor)``, renormalised, is the posterior under a uniform
+            action prior (``pi`` is the current policy on the expert state, read without
+            gradient; the floor bounds the boost of actions the policy almost never takes).
 
     Returns (``forward``): ``loss_bc`` and the detached diagnostics
     ``bc_log_prob`` (mean log-likelihood of the labels), ``bc_batch_size``,
@@ -96,6 +104,7 @@ class ExpertBCLoss(LossModule):
         labels: str = "argmax",
         confidence: float = 0.0,
         entropy_floor: float = 0.0,
+        prior_floor: float = 0.0,
     ):
         super().__init__()
         if not hasattr(actor_network, "get_dist"):
@@ -106,8 +115,11 @@ class ExpertBCLoss(LossModule):
             raise ValueError(f"confidence={confidence} must be in [0, 1]")
         if entropy_floor < 0:
             raise ValueError(f"entropy_floor={entropy_floor} must be >= 0")
-        if inverse_model is None and (labels != "argmax" or confidence > 0):
-            raise ValueError("soft labels and a confidence gate need an inverse model (they read P_i)")
+        if not 0.0 <= prior_floor <= 1.0:
+            raise ValueError(f"prior_floor={prior_floor} must be in [0, 1] (0: no prior correction)")
+        if inverse_model is None and (labels != "argmax" or confidence > 0 or prior_floor > 0):
+            raise ValueError("soft labels, a confidence gate and the prior correction need an inverse model "
+                             "(they read P_i)")
         in_keys = None
         if inverse_model is not None:
             inverse_model, in_keys = unwrap_inverse_model(inverse_model)
@@ -116,6 +128,7 @@ class ExpertBCLoss(LossModule):
         if in_keys is not None:
             self.set_keys(observation=in_keys[0], next_observation=in_keys[1])
         self.labels_mode, self.confidence, self.entropy_floor = labels, float(confidence), float(entropy_floor)
+        self.prior_floor = float(prior_floor)
         self.register_coeff_buffer("bc_coeff", bc_coeff)
 
     @property
@@ -151,6 +164,9 @@ class ExpertBCLoss(LossModule):
             with torch.no_grad():
                 p_i = self.inverse_model.action_logits(tensordict.get(self.tensor_keys.observation),
                                                        tensordict.get(self.tensor_keys.next_observation)).softmax(-1)
+                if self.prior_floor > 0:  # divide out the agent's own policy, the inverse model's prior
+                    p_i = p_i / dist.probs.detach().clamp_min(self.prior_floor)
+                    p_i = p_i / p_i.sum(-1, keepdim=True)
             labels = p_i.argmax(-1)
             tensordict.set(self.tensor_keys.inferred_action, labels)
         log_prob = dist.log_prob(labels)

@@ -86,6 +86,7 @@ def make_hybrid_loss(
     bc_labels: str = "argmax",
     bc_confidence: float = 0.0,
     bc_entropy_floor: float = 0.0,
+    bc_prior_floor: float = 0.0,
     expert_action_key: str = "expert_action",
     value_estimator_kwargs: dict | None = None,
 ) -> HybridLoss:
@@ -125,8 +126,13 @@ def make_hybrid_loss(
     bc_loss = None
     if variant.bc == "inferred":
         bc_loss = ExpertBCLoss(actor, inverse_model, bc_coeff=bc_coeff, labels=bc_labels, confidence=bc_confidence,
-                               entropy_floor=bc_entropy_floor)
+                               entropy_floor=bc_entropy_floor, prior_floor=bc_prior_floor)
     elif variant.bc == "true":
+        inferred_only = {k: v for k, v in (("bc_labels", bc_labels != "argmax"), ("bc_confidence", bc_confidence > 0),
+                                            ("bc_prior_floor", bc_prior_floor > 0)) if v}
+        if inferred_only:
+            raise ValueError(f"variant {variant.name!r} clones the expert's true actions; {sorted(inferred_only)} "
+                             "change how inferred labels are read from the inverse model and have no meaning here")
         bc_loss = ExpertBCLoss(actor, None, bc_coeff=bc_coeff, entropy_floor=bc_entropy_floor)
         bc_loss.set_keys(action=expert_action_key)
     return HybridLoss(rl_loss, idm_loss, bc_loss)

@@ -80,6 +80,9 @@ class LossConfig:
                                       # look-alike actions share probability instead of one being erased
     bc_confidence: float = 0.0         # clone only expert pairs whose max_a P_i >= this (0: every pair)
     bc_entropy_floor: float = 0.0      # add bc_coeff * relu(floor - H(pi)) on expert states (0: off)
+    # > 0: labels corrected for the agent's own policy, P_i(a|s,s') / max(pi(a|s), floor) renormalised: the
+    # inverse model learns the agent's policy as its prior, so its labels echo the agent (OURS; 0 = the paper)
+    bc_prior_floor: float = 0.0
     # > 0: BC switches on once the inverse model's running accuracy on the agent's own transitions (each
     # batch measured before it is trained on; no expert labels) reaches this, and not before bc_start_frames
     bc_ready_accuracy: float = 0.0
@@ -102,6 +105,7 @@ class LossConfig:
               f"loss.bc_ready_accuracy must be in [0, 1], got {self.bc_ready_accuracy}")
         _need(self.bc_start_frames >= 0, f"loss.bc_start_frames must be >= 0, got {self.bc_start_frames}")
         _need(self.bc_anneal_frames >= 0, f"loss.bc_anneal_frames must be >= 0, got {self.bc_anneal_frames}")
+        _need(0.0 <= self.bc_prior_floor <= 1.0, f"loss.bc_prior_floor must be in [0, 1], got {self.bc_prior_floor}")
         _need(self.bc_updates >= 0, f"loss.bc_updates must be >= 0, got {self.bc_updates}")
         _need(self.idm_updates >= 0, f"loss.idm_updates must be >= 0, got {self.idm_updates}")
 
@@ -109,7 +113,7 @@ class LossConfig:
         """The keyword arguments of :func:`~torchrl_hybrid.trainers.hybrid.make_hybrid_loss`."""
         return {k: getattr(self, k) for k in (
             "gamma", "critic_coeff", "entropy_coeff", "idm_action_coeff", "idm_embedding_coeff", "idm_forward_coeff",
-            "bc_coeff", "bc_labels", "bc_confidence", "bc_entropy_floor")}
+            "bc_coeff", "bc_labels", "bc_confidence", "bc_entropy_floor", "bc_prior_floor")}
 
 
 @dataclass
