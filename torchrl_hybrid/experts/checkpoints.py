@@ -43,9 +43,14 @@ def load_expert(path: str | Path, device: str | torch.device = "cpu"):
 def load_gym_expert(cfg, size: int, n_actions: int):
     """The expert policy of a vector-observation env (observations of ``size``): the actor
     of ``cfg.demo.expert`` (``model.pt`` of an earlier run of this pipeline on the same
-    env), rebuilt from the settings stored beside its weights; ``None`` without one."""
+    env), rebuilt from the settings stored beside its weights, or the callable it names
+    (``module:function``, :mod:`torchrl_hybrid.experts.scripted`); ``None`` without one."""
     if not cfg.demo.expert:  # demos given as a file: the expert is only needed for its evaluation
         return None
+    from torchrl_hybrid.experts.scripted import is_callable_spec, load_callable_expert
+
+    if is_callable_spec(cfg.demo.expert):  # module:function, e.g. a scripted controller
+        return load_callable_expert(cfg.demo.expert)
     path = Path(cfg.demo.expert)
     if not path.is_file():
         raise FileNotFoundError(f"demo.expert={path}: no such checkpoint; train an expert first "

@@ -102,7 +102,10 @@ class GymDemoConfig(DemoConfig):
     # discount of the built-in expert (value iteration on the env's P, ties to the lowest action); below 1
     # it takes the shortest way to the reward (with 1, FrozenLake's expert walks into a wall forever)
     expert_gamma: float = 0.99
-    expert: str | None = None   # vector observations: model.pt of an earlier run on this env, played to record demos
+    # vector observations: the expert played to record the demos: model.pt of an earlier run on this env, or
+    # any callable policy as module:function (obs [n, d] -> n actions), e.g. a scripted controller:
+    # torchrl_hybrid.experts.scripted:mountain_car_energy
+    expert: str | None = None
     # a Minari dataset id (e.g. cartpole/expert-v0) in the local Minari cache: its state sequences are the
     # demos, its actions dropped on load (nothing is downloaded; torchrl_hybrid/data/minari.py)
     minari: str | None = None
