@@ -263,3 +263,31 @@ def test_extra_bc_and_inverse_model_updates_per_batch(tmp_path):
     assert steps == {"actor": {3 * updates}, "critic": {updates}, "inverse_model": {2 * updates}}
     with pytest.raises(ValueError, match="loss.bc_updates must be >= 0"):
         tiny(tmp_path / "bad", **{"loss": {"bc_updates": -1}}).validate()
+
+
+def test_ppo_base_runs_epochs_of_minibatches_each_paired_with_expert_pairs(tmp_path):
+    """rl=ppo: TorchRL's ClipPPOLoss with GAE; each collected batch gets epochs x minibatches
+    optimisation steps, each minibatch a quarter of the batch, every transition once per epoch,
+    each paired with its own expert batch for BC."""
+    from torchrl.objectives import ClipPPOLoss
+
+    cfg = tiny(tmp_path, rl="ppo", ppo={"epochs": 2, "minibatches": 4})
+    run = build_taxi(cfg)
+    assert isinstance(run.loss.rl_loss, ClipPPOLoss) and run.trainer.optim_steps_per_batch == 8
+    seen = []
+    run.trainer.register_op("process_optim_batch", lambda td: seen.append(td) or td)  # after the expert pairing
+    run.trainer.train()
+    run.collector.shutdown()
+    run.lock.close()
+    batch = cfg.frames_per_batch
+    assert len(seen) == 8 * (640 // batch)
+    assert all(td["agent"].shape == (batch // 4,) and "advantage" in td["agent"].keys() for td in seen)
+    assert all("observation" in td["expert"].keys() for td in seen)
+    first_epoch = torch.cat([td["agent", "observation"] for td in seen[:4]])
+    assert first_epoch.shape == (batch,)
+    rows = run.metrics.rows
+    assert {"clip_fraction", "loss_bc", "loss_inverse", "kl_approx"} <= set(rows[-1])
+    with pytest.raises(ValueError, match="ppo.minibatches=5 must divide a batch of 32"):
+        tiny(tmp_path / "bad", rl="ppo", ppo={"minibatches": 5}).validate()
+    with pytest.raises(ValueError, match="rl must be one of"):
+        tiny(tmp_path / "bad", rl="sac").validate()

@@ -27,6 +27,10 @@ __all__ = ["GymCompareConfig", "GYM_ARMS", "run_gym_compare", "analyse_gym_compa
 #: named arms of the gymnasium comparison: a variant with settings over the comparison's base, each
 #: measured against the arm it changes (``base``). User arms go beside them (``+compare.arms``).
 GYM_ARMS: dict[str, dict] = {
+    # the PPO base (rl=ppo: TorchRL's ClipPPOLoss + GAE): PPO alone, the paper's hybrid and the oracle on it
+    "ppo": {"variant": "a2c", "rl": "ppo"},
+    "hybrid_dual_ppo": {"variant": "hybrid_dual", "base": "ppo", "rl": "ppo"},
+    "hybrid_true_ppo": {"variant": "hybrid_true", "base": "ppo", "rl": "ppo"},
     # the objective's balance (issue 32): the BC gradient clipped apart from the RL gradient
     "hybrid_dual_clip_apart": {"variant": "hybrid_dual", "base": "hybrid_dual", "optim": {"clip": "per_term"}},
     "hybrid_true_clip_apart": {"variant": "hybrid_true", "base": "hybrid_true", "optim": {"clip": "per_term"}},

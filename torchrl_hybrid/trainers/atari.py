@@ -168,6 +168,9 @@ class AtariConfig(RunConfig):
                              "(shared: the paper's one CNN; own: the inverse model's own CNN)")
         self.loss.validate()
         self.optim.validate()
+        if self.rl != "a2c":
+            raise ValueError(f"rl={self.rl!r}: Atari runs the paper's A2C only for now (rl=ppo is built for the "
+                             "gymnasium family)")
         if self.loss.idm_forward_coeff > 0:
             raise ValueError("loss.idm_forward_coeff > 0 (the forward head P_f over next states) needs discrete "
                              "states; Atari frames have none")

@@ -15,7 +15,7 @@ from torchrl.objectives import LossModule
 from torchrl.trainers import Trainer, TrainerHookBase
 
 __all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "InverseModelReadyHook", "MetricsHook",
-           "NextStateValueHook", "RandomStateHook", "RunStateHook", "LRWarmupHook", "random_state", "set_random_state"]
+           "MinibatchHook", "NextStateValueHook", "RandomStateHook", "RunStateHook", "LRWarmupHook", "random_state", "set_random_state"]
 
 
 def _check_schedulable(loss: LossModule, name: str) -> None:
@@ -447,6 +447,58 @@ class NextStateValueHook(TrainerHookBase):
 
     def register(self, trainer: Trainer, name: str = "next_state_value") -> None:
         trainer.register_op("batch_process", self)
+
+
+class MinibatchHook(TrainerHookBase):
+    """PPO's epochs of minibatches over each collected batch, in TorchRL's trainer.
+
+    At ``batch_process`` the RL loss's value estimator (GAE) writes ``advantage`` and
+    ``value_target`` on the whole ``[envs, time]`` batch, once, without gradient, and the
+    batch is flattened. At ``process_optim_batch`` (register it before the
+    :class:`ExpertBatchHook`, which then pairs each minibatch with expert pairs) each of the
+    trainer's ``epochs x minibatches`` optimisation steps gets the next minibatch of a fresh
+    random permutation per epoch.
+
+    Args:
+        value_estimator: e.g. ``ClipPPOLoss.value_estimator`` (TorchRL's GAE).
+        minibatches: minibatches per epoch; they must divide the batch.
+    """
+
+    def __init__(self, value_estimator, minibatches: int):
+        if minibatches < 1:
+            raise ValueError(f"minibatches must be >= 1, got {minibatches}")
+        self.value_estimator, self.minibatches = value_estimator, int(minibatches)
+        self._flat: TensorDictBase | None = None
+        self._perm: torch.Tensor | None = None
+        self._step = 0
+
+    @torch.no_grad()
+    def process(self, batch: TensorDictBase) -> TensorDictBase:
+        batch = self.value_estimator(batch)
+        self._flat, self._step = batch.reshape(-1), 0
+        if self._flat.shape[0] % self.minibatches:
+            raise ValueError(f"a batch of {self._flat.shape[0]} transitions does not split into {self.minibatches} "
+                             "minibatches; choose ppo.minibatches dividing env.num_envs * loss.n_steps")
+        return batch
+
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase:
+        n = self._flat.shape[0]
+        k = self._step % self.minibatches
+        if k == 0:  # a new epoch: a new order
+            self._perm = torch.randperm(n, device=self._flat.device)
+        self._step += 1
+        size = n // self.minibatches
+        return self._flat[self._perm[k * size:(k + 1) * size]]
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        return
+
+    def register(self, trainer: Trainer, name: str = "minibatches") -> None:
+        trainer.register_op("batch_process", self.process)
+        trainer.register_op("process_optim_batch", self)
 
 
 def random_state() -> dict[str, Any]:

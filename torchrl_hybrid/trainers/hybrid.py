@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from torchrl.objectives import A2CLoss, ValueEstimators
+from torchrl.objectives import A2CLoss, ClipPPOLoss, ValueEstimators
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torchrl.checkpoint import Checkpoint
@@ -23,7 +23,7 @@ from torchrl_hybrid.objectives import (
 )
 from torchrl_hybrid.utils.config import flatten_dict
 
-__all__ = ["CLIP_MODES", "ClippedOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
+__all__ = ["CLIP_MODES", "RL_BASES", "ClippedOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
            "make_hybrid_loss", "make_trainer", "resume_trainer"]
 
 
@@ -46,6 +46,9 @@ class Variant:
     inverse_model: str | None
     description: str
 
+
+#: the RL loss of the variants that have one: the paper's A2C, or PPO (TorchRL's ClipPPOLoss with GAE)
+RL_BASES = ("a2c", "ppo")
 
 VARIANTS: dict[str, Variant] = {
     v.name: v
@@ -89,19 +92,39 @@ def make_hybrid_loss(
     bc_prior_floor: float = 0.0,
     expert_action_key: str = "expert_action",
     value_estimator_kwargs: dict | None = None,
+    rl: str = "a2c",
+    ppo: dict | None = None,
 ) -> HybridLoss:
     """Builds the variant's :class:`HybridLoss`.
 
-    The A2C part is TorchRL's ``A2CLoss`` with the n-step return of each rollout
-    (TD(1) over the rollout, bootstrapped from the critic at its end), an L2
-    critic loss weighted ``critic_coeff`` and an entropy bonus ``entropy_coeff``.
+    The RL part (``rl="a2c"``, the paper's) is TorchRL's ``A2CLoss`` with the n-step
+    return of each rollout (TD(1) over the rollout, bootstrapped from the critic at its
+    end), an L2 critic loss weighted ``critic_coeff`` and an entropy bonus
+    ``entropy_coeff``; ``rl="ppo"`` is TorchRL's ``ClipPPOLoss`` with GAE (``ppo``:
+    ``clip_epsilon``, ``gae_lambda``, ``normalize_advantage``), its epochs and minibatches
+    run by a :class:`~torchrl_hybrid.trainers.hooks.MinibatchHook`.
     """
     if (variant.inverse_model is None) != (inverse_model is None):
         raise ValueError(
             f"variant {variant.name!r} {'needs' if variant.inverse_model else 'takes no'} inverse model"
         )
+    if rl not in RL_BASES:
+        raise ValueError(f"rl={rl!r}: choose one of {RL_BASES}")
     rl_loss = None
-    if variant.rl:
+    if variant.rl and rl == "ppo":
+        ppo = {"clip_epsilon": 0.2, "gae_lambda": 0.95, "normalize_advantage": True, **(ppo or {})}
+        rl_loss = ClipPPOLoss(
+            actor,
+            critic,
+            clip_epsilon=ppo["clip_epsilon"],
+            entropy_coeff=entropy_coeff,
+            critic_coeff=critic_coeff,
+            loss_critic_type="l2",
+            normalize_advantage=ppo["normalize_advantage"],
+        )
+        rl_loss.make_value_estimator(ValueEstimators.GAE, gamma=gamma, lmbda=ppo["gae_lambda"],
+                                     **(value_estimator_kwargs or {}))
+    elif variant.rl:
         rl_loss = A2CLoss(
             actor,
             critic,
@@ -272,8 +295,10 @@ def make_trainer(
     frame_skip: int = 1,
     bc_updates: int = 0,
     idm_updates: int = 0,
+    optim_steps_per_batch: int = 1,
 ) -> Trainer:
-    """A TorchRL ``Trainer`` with one optimisation step per collected batch.
+    """A TorchRL ``Trainer`` with ``optim_steps_per_batch`` optimisation steps per collected
+    batch (1, the paper's A2C; PPO's epochs x minibatches).
 
     The step is a :class:`ClippedOptimizationStepper`: ``clip`` = ``"global"`` clips the
     norm of the whole gradient (as TorchRL's default stepper does, without its device sync),
@@ -290,7 +315,7 @@ def make_trainer(
         collector=collector,
         total_frames=total_frames,
         frame_skip=frame_skip,
-        optim_steps_per_batch=1,
+        optim_steps_per_batch=optim_steps_per_batch,
         loss_module=loss,
         optimizer=optimizer,
         optimization_stepper=stepper,

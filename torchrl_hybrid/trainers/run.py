@@ -36,7 +36,7 @@ from torchrl.trainers import UpdateWeights
 from torchrl_hybrid.collectors.workers import BatchToDeviceHook, worker_weights_getter
 from torchrl_hybrid.data import EXPERT_ACTION_KEY
 from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics
-from torchrl_hybrid.trainers.hooks import LRWarmupHook, MetricsHook
+from torchrl_hybrid.trainers.hooks import LRWarmupHook, MetricsHook, MinibatchHook
 from torchrl_hybrid.trainers.hybrid import (
     Variant,
     attach_demonstrations,
@@ -50,7 +50,7 @@ from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.files import prepare_out_dir
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
-__all__ = ["RunConfig", "LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig", "LOGGERS", "BC_LABELS", "EnvFamily", "Setup", "Networks", "Run",
+__all__ = ["RunConfig", "LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig", "PPOConfig", "LOGGERS", "BC_LABELS", "EnvFamily", "Setup", "Networks", "Run",
            "build_run", "train_run", "finish_run", "make_inverse_model", "load_init_weights"]
 
 LOGGERS = ("csv", "tensorboard", "wandb", "none")
@@ -152,6 +152,24 @@ class OptimConfig(RMSpropConfig):
 
 
 @dataclass
+class PPOConfig:
+    """``rl=ppo``: TorchRL's ``ClipPPOLoss`` with GAE, ``epochs`` passes over each collected batch
+    in ``minibatches`` minibatches (OURS: the paper's RL base is A2C; these are the usual PPO values)."""
+
+    epochs: int = 4
+    minibatches: int = 4         # must divide env.num_envs * loss.n_steps
+    clip_epsilon: float = 0.2
+    gae_lambda: float = 0.95
+    normalize_advantage: bool = True
+
+    def validate(self) -> None:
+        _need(self.epochs >= 1 and self.minibatches >= 1,
+              f"ppo.epochs and ppo.minibatches must be >= 1, got {self.epochs}, {self.minibatches}")
+        _need(0.0 < self.clip_epsilon < 1.0, f"ppo.clip_epsilon must be in (0, 1), got {self.clip_epsilon}")
+        _need(0.0 <= self.gae_lambda <= 1.0, f"ppo.gae_lambda must be in [0, 1], got {self.gae_lambda}")
+
+
+@dataclass
 class DemoConfig:
     """Where the expert's state pairs come from and how the BC term samples them; each env
     family adds its own demo settings."""
@@ -183,6 +201,8 @@ class RunConfig:
     (``TaxiConfig``, ``AtariConfig``) extends it and changes the defaults its env needs."""
 
     variant: str = "hybrid_dual"  # the agent (trainers/hybrid.py: VARIANTS); hybrid_dual is the paper's
+    # the RL loss of the variants that have one: a2c (the paper's) | ppo (ClipPPOLoss + GAE, the ppo settings)
+    rl: str = "a2c"
     seed: int = 0
     total_frames: int = 80_000    # frames to train (summed over the parallel envs)
     rank: int = 2                 # rank R of the dual tensor model
@@ -210,6 +230,22 @@ class RunConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+
+    def validate_rl(self) -> None:
+        """The RL base's settings (each family's validate calls it)."""
+        from torchrl_hybrid.trainers.hybrid import RL_BASES
+
+        _need(self.rl in RL_BASES, f"rl must be one of {RL_BASES}, got {self.rl!r}")
+        if self.rl == "ppo":
+            self.ppo.validate()
+            _need(self.frames_per_batch % self.ppo.minibatches == 0,
+                  f"ppo.minibatches={self.ppo.minibatches} must divide a batch of {self.frames_per_batch} transitions "
+                  "(env.num_envs * loss.n_steps)")
+
+    @property
+    def optim_steps_per_batch(self) -> int:
+        return self.ppo.epochs * self.ppo.minibatches if self.rl == "ppo" else 1
 
 
 def _need(ok: bool, msg: str) -> None:
@@ -426,7 +462,8 @@ def build_run(cfg, family: EnvFamily) -> Run:
                                            setup.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
                                            mlp_layers=cfg.mlp_layers, n_states=n_states)
         loss = make_hybrid_loss(variant, nets.actor, nets.critic, inverse_model, expert_action_key=EXPERT_ACTION_KEY,
-                                **cfg.loss.loss_kwargs(), **family.loss_extra).to(device)
+                                rl=cfg.rl, ppo=dataclasses.asdict(cfg.ppo), **cfg.loss.loss_kwargs(),
+                                **family.loss_extra).to(device)
         # the loss moves the networks it trains; the collection policy may hold more (Atari's writes the
         # critic's state_value, which a variant without the RL loss never trains)
         for net in (nets.actor, nets.critic, nets.collection_policy):
@@ -446,6 +483,7 @@ def build_run(cfg, family: EnvFamily) -> Run:
             save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
             save_trainer_interval=max(cfg.total_frames // family.checkpoints_per_run, frames_per_batch),
             clip=cfg.optim.clip, frame_skip=skip, bc_updates=cfg.loss.bc_updates, idm_updates=cfg.loss.idm_updates,
+            optim_steps_per_batch=cfg.optim_steps_per_batch,
         )
         run = Run(cfg, family, variant, setup, trainer, collector, nets.actor, nets.critic, nets.encoder, inverse_model,
                   policy, loss, None, out, device, 0, lock)
@@ -458,6 +496,8 @@ def build_run(cfg, family: EnvFamily) -> Run:
             LRWarmupHook(optimizer, warmup).register(trainer)
         if family.uses_workers(cfg):
             BatchToDeviceHook(device).register(trainer)  # the workers store their batches on the CPU
+        if cfg.rl == "ppo" and loss.rl_loss is not None:  # before the expert batches: they pair with each minibatch
+            MinibatchHook(loss.rl_loss.value_estimator, cfg.ppo.minibatches).register(trainer)
         family.register_hooks(run)
         if family.uses_workers(cfg):  # the workers' policy copies get the learner's weights after every batch
             UpdateWeights(collector, update_weights_interval=1,

@@ -57,7 +57,7 @@ from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 
 # a checkpoint is resumed only by a run that agrees on these (total_frames may grow)
 _RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "mlp_layers", "identity_embedding", "env", "demo", "loss",
-                "optim", "encoder")
+                "optim", "encoder", "rl", "ppo")
 
 __all__ = ["TaxiConfig", "GymFamily", "config_from_dict", "make_taxi_demos", "build_taxi", "train_taxi",
            "record_episodes", "load_gym_expert"]
@@ -208,6 +208,9 @@ class TaxiConfig(RunConfig):
         need(self.env.max_episode_steps >= 1, f"env.max_episode_steps must be >= 1, got {self.env.max_episode_steps}")
         self.loss.validate()
         self.optim.validate()
+        self.validate_rl()
+        need(self.rl == "a2c" or self.engine == "torchrl", f"rl={self.rl} needs engine=torchrl (the batched engine is "
+             "the paper's A2C)")
         need(
             self.total_frames >= self.frames_per_batch,
             f"total_frames={self.total_frames} is less than one batch (env.num_envs * loss.n_steps = {self.frames_per_batch})",
