@@ -331,3 +331,69 @@ def test_prior_corrected_labels_undo_the_inverse_models_echo_of_the_agents_polic
         ExpertBCLoss(actor, Echo(), prior_floor=1.5)
     with pytest.raises(ValueError, match="need an inverse model"):
         ExpertBCLoss(actor, None, prior_floor=0.05)
+
+
+def test_explorer_slots_give_the_inverse_model_every_action_and_stay_out_of_the_rl_loss():
+    """A known case: s' = (s + a) mod 10 with 3 actions, and an agent whose policy has
+    collapsed onto action 0. On its own transitions the inverse model can only learn label 0
+    (its prior is the agent's policy); with 4 of 8 env slots acting uniformly at random
+    (ExplorerSlots) it labels every action right. The RL loss never sees the explorer slots."""
+    from tensordict.nn import TensorDictModule
+    from torch import nn
+    from torchrl.modules import ProbabilisticActor
+
+    from torchrl_hybrid.modules import ExplorerSlots
+    from torchrl_hybrid.objectives import HybridLoss
+
+    head = nn.Linear(1, 3)
+    with torch.no_grad():
+        head.weight.zero_()
+        head.bias.copy_(torch.tensor([20.0, 0.0, 0.0]))  # always action 0
+    actor = ProbabilisticActor(TensorDictModule(head, in_keys=["x"], out_keys=["logits"]), in_keys=["logits"],
+                               distribution_class=torch.distributions.Categorical, return_log_prob=True)
+    explorer = ExplorerSlots(actor, n_actions=3, n_explorers=4)
+
+    def batch(policy, n_envs=8, steps=64):
+        s = torch.randint(10, (n_envs, steps))
+        td = TensorDict({"x": torch.zeros(n_envs, steps, 1)}, [n_envs, steps])
+        out = torch.stack([policy(td[:, t].clone()) for t in range(steps)], 1)
+        a = out["action"]
+        return TensorDict({"observation": s, "action": a, ("next", "observation"): (s + a) % 10,
+                           **({"explore": out["explore"]} if "explore" in out.keys() else {})}, [n_envs, steps])
+
+    torch.manual_seed(0)
+    td = batch(explorer)
+    assert td["explore"][:4].all() and not td["explore"][4:].any()
+    assert (td["action"][4:] == 0).all()
+    counts = torch.bincount(td["action"][:4].reshape(-1), minlength=3).float() / td["action"][:4].numel()
+    assert torch.allclose(counts, torch.full((3,), 1 / 3), atol=0.08)  # uniform in the explorer slots
+
+    def labels_after_training(policy):
+        torch.manual_seed(1)
+        data = batch(policy, steps=128).reshape(-1)  # the transitions the collector would give
+        idm = DualInverseDynamics(OneHotEncoder(10), n_actions=3, d_state=16, d=16)
+        loss = DualInverseDynamicsLoss(idm, embedding_coeff=0.0)
+        opt = torch.optim.Adam(idm.parameters(), lr=0.05)
+        for _ in range(100):
+            opt.zero_grad()
+            out = loss(data)
+            sum(v for k, v in out.items() if k.startswith("loss")).backward()
+            opt.step()
+        s = torch.arange(30) % 10
+        a = torch.arange(30) // 10  # every action, each state
+        return float((idm.infer(s, (s + a) % 10) == a).float().mean())
+
+    assert labels_after_training(actor) < 0.4       # the echo: action 0 everywhere (1/3 right)
+    assert labels_after_training(explorer) > 0.95   # every action told apart
+    # the RL loss's input drops the explorer rows, whole env rows so the returns stay per trajectory
+    hybrid = HybridLoss(PolicyEntropyLossStub(), None, None)
+    hybrid.forward_parts(TensorDict({"agent": td, "expert": TensorDict({}, [0])}, []))
+    assert hybrid.rl_loss.seen.shape == (4, 64) and not hybrid.rl_loss.seen["explore"].any()
+
+
+class PolicyEntropyLossStub(torch.nn.Module):
+    """Records the batch the RL part of a HybridLoss is given."""
+
+    def forward(self, td):
+        self.seen = td
+        return TensorDict({"loss_objective": torch.zeros(())}, [])

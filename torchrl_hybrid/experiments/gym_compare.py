@@ -38,8 +38,10 @@ GYM_ARMS: dict[str, dict] = {
     "hybrid_dual_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_updates": 4, "idm_updates": 4}},
     # a larger BC batch
     "hybrid_dual_bc128": {"variant": "hybrid_dual", "base": "hybrid_dual", "demo": {"batch_size": 128}},
-    # labels that do not echo the agent: the inverse model's prior (the agent's policy) divided out
+    # labels that do not echo the agent: the inverse model's prior (the agent's policy) divided out ...
     "hybrid_dual_prior": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_prior_floor": 0.05}},
+    # ... or 4 of the 16 env slots acting uniformly at random, for the inverse model only
+    "hybrid_dual_explore": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"explore_envs": 4}},
 }
 
 

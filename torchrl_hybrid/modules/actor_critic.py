@@ -2,14 +2,14 @@
 from __future__ import annotations
 
 import torch
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from torch import nn
 from torchrl.modules import ProbabilisticActor, ValueOperator
 from torch.distributions import Categorical
 
 from torchrl_hybrid.modules.encoders import MLPEncoder, OneHotEncoder
 
-__all__ = ["make_mlp_actor_critic", "make_policy", "make_tabular_actor_critic", "tabular_net"]
+__all__ = ["ExplorerSlots", "make_mlp_actor_critic", "make_policy", "make_tabular_actor_critic", "tabular_net"]
 
 
 def tabular_net(n_states: int, out_features: int, identity_embedding: bool = True) -> nn.Sequential:
@@ -66,3 +66,44 @@ def make_mlp_actor_critic(
     critic = ValueOperator(nn.Sequential(MLPEncoder(obs_dim, hidden, num_layers), nn.Linear(hidden, 1)),
                            in_keys=["observation"])
     return actor, critic
+
+
+class ExplorerSlots(TensorDictModuleBase):
+    """The collection policy with ``n_explorers`` env slots acting uniformly at random.
+
+    The first ``n_explorers`` envs of each batch take a uniformly random action instead of the
+    policy's, and every step is marked ``explore`` (True in those slots). Their transitions
+    show the inverse model every action in the states the agent visits, so its labels are not
+    the agent's own favourite action where the policy has narrowed (P_i(a | s, s') ∝ P(s' | s,
+    a) pi(a | s): the explorers' pi is uniform). :class:`~torchrl_hybrid.objectives.HybridLoss`
+    keeps them out of the RL loss: they are off-policy for A2C and PPO, and importance weights
+    1 / pi(a | s) would be unbounded where pi is small; the inverse model trains on every slot.
+
+    Args:
+        actor: the policy (writes ``action``).
+        n_actions: the number of discrete actions.
+        n_explorers: how many env slots explore (the first ones of the batch).
+    """
+
+    def __init__(self, actor: TensorDictModuleBase, n_actions: int, n_explorers: int):
+        super().__init__()
+        if n_explorers < 1:
+            raise ValueError(f"n_explorers must be >= 1, got {n_explorers}")
+        self.actor, self.n_actions, self.n_explorers = actor, int(n_actions), int(n_explorers)
+        self.in_keys = list(actor.in_keys)
+        self.out_keys = list(dict.fromkeys([*actor.out_keys, "explore"]))
+
+    def forward(self, tensordict):
+        tensordict = self.actor(tensordict)
+        action = tensordict.get("action")
+        n = action.shape[0]
+        if n <= self.n_explorers:
+            raise ValueError(f"{n} envs but {self.n_explorers} explorer slots: at least one env must follow the policy")
+        explore = torch.zeros(action.shape[: tensordict.batch_dims], dtype=torch.bool, device=action.device)
+        explore[: self.n_explorers] = True
+        random = torch.randint(self.n_actions, action[: self.n_explorers].shape, device=action.device)
+        action = action.clone()
+        action[: self.n_explorers] = random.to(action.dtype)
+        tensordict.set("action", action)
+        tensordict.set("explore", explore)
+        return tensordict

@@ -36,10 +36,13 @@ class HybridLoss(LossModule):
         """Attributes:
         agent: sub-tensordict with the agent's transitions. Defaults to ``"agent"``.
         expert: sub-tensordict with the expert pairs. Defaults to ``"expert"``.
+        explore: marks the agent's transitions made by explorer slots (uniformly random
+            actions), which the RL loss leaves out. Defaults to ``"explore"``.
         """
 
         agent: NestedKey = "agent"
         expert: NestedKey = "expert"
+        explore: NestedKey = "explore"
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
@@ -91,8 +94,22 @@ class HybridLoss(LossModule):
                     f"{type(loss).__name__} needs the sub-tensordict {key!r}; the trainer's "
                     "ExpertBatchHook builds it (or pass TensorDict({'agent': ..., 'expert': ...}, []))."
                 )
+            if name == "rl":
+                sub = self._policy_slots(sub)
             parts[name] = loss(sub)
         return parts
+
+    def _policy_slots(self, sub: TensorDictBase) -> TensorDictBase:
+        """The agent's transitions without the explorer slots' (``explore``, written by
+        :class:`~torchrl_hybrid.modules.ExplorerSlots`): they are off-policy for the RL loss.
+        An ``[envs, time]`` batch keeps whole env rows, so the returns stay per trajectory."""
+        key = self.tensor_keys.explore
+        if key not in sub.keys():
+            return sub
+        explore = sub.get(key)
+        if sub.ndim == 2:
+            return sub[~explore[:, 0]]
+        return sub[~explore.reshape(sub.shape)]
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         out = TensorDict({}, [])

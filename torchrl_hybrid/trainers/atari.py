@@ -168,6 +168,9 @@ class AtariConfig(RunConfig):
                              "(shared: the paper's one CNN; own: the inverse model's own CNN)")
         self.loss.validate()
         self.optim.validate()
+        if self.loss.explore_envs:
+            raise ValueError("loss.explore_envs (explorer env slots) is built for the gymnasium family; Atari's "
+                             "collector does not take it yet")
         if self.rl != "a2c":
             raise ValueError(f"rl={self.rl!r}: Atari runs the paper's A2C only for now (rl=ppo is built for the "
                              "gymnasium family)")

@@ -296,7 +296,7 @@ def idm_loss_terms(agents: BatchedTabularAgents, s, a, s2, lc) -> dict[str, torc
 
 # label options of ExpertBCLoss beyond the paper, which bc_loss_terms does not implement
 _BEYOND_THE_PAPER = ("bc_labels", "bc_confidence", "bc_entropy_floor", "bc_ready_accuracy", "bc_anneal_frames",
-                     "bc_updates", "idm_updates", "bc_prior_floor")
+                     "bc_updates", "idm_updates", "bc_prior_floor", "explore_envs")
 
 
 def bc_loss_terms(agents: BatchedTabularAgents, es, es2, mask, bc_coeff: float, true_labels=None):

@@ -305,8 +305,10 @@ class MetricsHook(TrainerHookBase):
     def collect(self, batch: TensorDictBase) -> None:
         # kept on the learner's device until the next row: no device-to-host sync per batch (copies:
         # a collector may write its next batch into the same memory)
-        self._returns.append((batch.get(self.return_key).reshape(-1).clone(),
-                              batch.get(("next", "done")).reshape(-1).clone()))
+        done = batch.get(("next", "done")).reshape(-1).clone()
+        if "explore" in batch.keys():  # the explorer slots' random-action episodes are not the agent's
+            done &= ~batch.get("explore").reshape(-1)
+        self._returns.append((batch.get(self.return_key).reshape(-1).clone(), done))
 
     def losses(self, optim_steps: int, average_losses: TensorDictBase | None) -> None:
         if average_losses is not None:  # read on the host only when a row is written

@@ -35,7 +35,7 @@ from torchrl.trainers import UpdateWeights
 
 from torchrl_hybrid.collectors.workers import BatchToDeviceHook, worker_weights_getter
 from torchrl_hybrid.data import EXPERT_ACTION_KEY
-from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics
+from torchrl_hybrid.modules import DualInverseDynamics, ExplorerSlots, MLPInverseDynamics
 from torchrl_hybrid.trainers.hooks import LRWarmupHook, MetricsHook, MinibatchHook
 from torchrl_hybrid.trainers.hybrid import (
     Variant,
@@ -95,6 +95,9 @@ class LossConfig:
     bc_updates: int = 0
     # ... and of the inverse model's loss alone (on the same agent batch); the RL loss is never repeated
     idm_updates: int = 0
+    # > 0: this many env slots act uniformly at random (ExplorerSlots); their transitions train the inverse
+    # model, so its labels are not the agent's own favourite action, and are kept out of the RL loss (OURS)
+    explore_envs: int = 0
 
     def validate(self) -> None:
         _need(self.n_steps >= 1, f"loss.n_steps must be >= 1, got {self.n_steps}")
@@ -108,6 +111,7 @@ class LossConfig:
         _need(0.0 <= self.bc_prior_floor <= 1.0, f"loss.bc_prior_floor must be in [0, 1], got {self.bc_prior_floor}")
         _need(self.bc_updates >= 0, f"loss.bc_updates must be >= 0, got {self.bc_updates}")
         _need(self.idm_updates >= 0, f"loss.idm_updates must be >= 0, got {self.idm_updates}")
+        _need(self.explore_envs >= 0, f"loss.explore_envs must be >= 0, got {self.explore_envs}")
 
     def loss_kwargs(self) -> dict[str, Any]:
         """The keyword arguments of :func:`~torchrl_hybrid.trainers.hybrid.make_hybrid_loss`."""
@@ -472,6 +476,8 @@ def build_run(cfg, family: EnvFamily) -> Run:
         optimizer = cfg.optim.make(param_groups(loss))
         skip = family.frame_skip(setup)
         policy = nets.collection_policy if nets.collection_policy is not None else nets.actor
+        if cfg.loss.explore_envs > 0:  # some env slots act at random, for the inverse model's data
+            policy = ExplorerSlots(policy, setup.n_actions, cfg.loss.explore_envs)
         collector = family.collector(cfg, setup, policy, device, -(-cfg.total_frames // skip))
         logger = None
         if cfg.logger.backend != "none":

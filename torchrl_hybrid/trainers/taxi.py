@@ -209,6 +209,10 @@ class TaxiConfig(RunConfig):
         self.loss.validate()
         self.optim.validate()
         self.validate_rl()
+        need(self.loss.explore_envs < self.env.num_envs // max(1, self.collector.workers if self.collector.kind != "single"
+                                                                else 1),
+             f"loss.explore_envs={self.loss.explore_envs} must leave at least one env (per worker) following the "
+             f"policy: env.num_envs={self.env.num_envs}")
         need(self.rl == "a2c" or self.engine == "torchrl", f"rl={self.rl} needs engine=torchrl (the batched engine is "
              "the paper's A2C)")
         need(
