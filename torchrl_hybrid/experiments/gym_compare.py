@@ -34,8 +34,11 @@ GYM_ARMS: dict[str, dict] = {
     # the objective's balance (issue 32): the BC gradient clipped apart from the RL gradient
     "hybrid_dual_clip_apart": {"variant": "hybrid_dual", "base": "hybrid_dual", "optim": {"clip": "per_term"}},
     "hybrid_true_clip_apart": {"variant": "hybrid_true", "base": "hybrid_true", "optim": {"clip": "per_term"}},
-    # more BC and inverse-model updates per collected batch
+    # more BC and inverse-model updates per collected batch (4 more of each), and each alone
     "hybrid_dual_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_updates": 4, "idm_updates": 4}},
+    "hybrid_dual_bc_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_updates": 4}},
+    "hybrid_dual_idm_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"idm_updates": 4}},
+    "hybrid_true_utd4": {"variant": "hybrid_true", "base": "hybrid_true", "loss": {"bc_updates": 4}},
     # a larger BC batch
     "hybrid_dual_bc128": {"variant": "hybrid_dual", "base": "hybrid_dual", "demo": {"batch_size": 128}},
     # labels that do not echo the agent: the inverse model's prior (the agent's policy) divided out ...
@@ -299,6 +302,17 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
             row["option_effect"] = (f"auc − {base}: {d:+.2f} [{lo:+.2f}, {hi:+.2f}], "
                                     f"p = {permutation_p(s['auc'], stats[base]['auc']):.3f}")
         table.append(row)
+    raw = {"env_id": env_name,
+           "expert_return": optimal, "random_return": random_return, "threshold": threshold, "reach_share": REACH,
+           "reference": ref,
+           "arms": {v: {"variant": cfg.run_settings(v)["variant"], "base": cfg.all_arms.get(v, {}).get("base"),
+                        "seeds": st["seeds"], "auc": st["auc"].tolist(), "final": st["final"].tolist(),
+                        "frames_to_reach": [None if not np.isfinite(x) else float(x) for x in st["reach"]],
+                        "budget": st["budget"],
+                        "idm_accuracy_expert_end": [None if np.isnan(x) else float(x) for x in st["idm_acc"]],
+                        "entropy_end": [None if np.isnan(x) else float(x) for x in st["entropy"]]}
+                    for v, st in stats.items()}}
+    (out / "summary.json").write_text(json.dumps(raw, indent=2))
     with open(out / "summary.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=sorted({k for t in table for k in t}, key=lambda k: list(table[0]).index(k)
                                                 if k in table[0] else 99))

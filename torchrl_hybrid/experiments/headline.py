@@ -1,0 +1,116 @@
+"""One table over every env's comparison (the README's headline): the RL base, the paper's
+hybrid, the best arm with inferred labels, and the oracle, from each comparison's
+``summary.json`` (written by :func:`~torchrl_hybrid.experiments.gym_compare.analyse_gym_compare`).
+
+``recipes/headline.py`` is the command line; it rewrites the README block between
+``<!-- headline:start -->`` and ``<!-- headline:end -->``.
+
+The issue's goals, per env, for the best arm with inferred labels:
+
+- *faster*: it reaches 90 % of the way from the random policy's return to the expert's in at
+  most half the frames its RL base needs (a seed that never reaches it counts as the whole
+  budget), or it reaches it in every seed where the base reaches it in none;
+- *labels as good as true ones*: its AUC is inside the oracle arm's 95 % interval, or above.
+
+Where a goal is missed, the decomposition says which part is at fault: the oracle against the
+RL base is the objective's, the best inferred arm against the oracle is the labels'.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
+
+__all__ = ["headline_rows", "headline_markdown", "update_readme_block"]
+
+START, END = "<!-- headline:start -->", "<!-- headline:end -->"
+
+
+def _frames(arm: dict) -> np.ndarray:
+    return np.array([arm["budget"] if f is None else f for f in arm["frames_to_reach"]], float)
+
+
+def _reached(arm: dict) -> int:
+    return sum(f is not None for f in arm["frames_to_reach"])
+
+
+def _ci(x) -> str:
+    x = np.asarray(x, float)
+    if len(x) < 3:
+        return f"{x.mean():.1f}"
+    m, lo, hi = mean_ci(x)
+    return f"{m:.1f} [{lo:.1f}, {hi:.1f}]"
+
+
+def headline_rows(studies: dict[str, str | Path], base: str = "a2c", paper: str = "hybrid_dual",
+                  oracle: str = "hybrid_true") -> list[dict[str, Any]]:
+    """One row per env: ``studies`` maps an env's label to its comparison's out_dir."""
+    rows = []
+    for label, out_dir in studies.items():
+        summary = json.loads((Path(out_dir) / "summary.json").read_text())
+        arms = summary["arms"]
+        if base not in arms:
+            raise ValueError(f"{out_dir}: no {base!r} runs to compare against")
+        b = arms[base]
+        inferred = {k: a for k, a in arms.items() if a["variant"] in ("hybrid_dual", "hybrid_mlp")}
+        best_name = max(inferred, key=lambda k: np.mean(inferred[k]["auc"])) if inferred else None
+        row: dict[str, Any] = {"env": label, "out_dir": str(out_dir), "expert": summary["expert_return"],
+                               "base": _ci(b["auc"]), "base_reached": f"{_reached(b)}/{len(b['auc'])}",
+                               "base_frames": float(_frames(b).mean())}
+        for key, name in (("paper", paper), ("best", best_name), ("oracle", oracle)):
+            a = arms.get(name)
+            if a is None:
+                row[key] = None
+                continue
+            d, lo, hi = mean_diff_ci(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else (np.nan,) * 3
+            p = permutation_p(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else np.nan
+            row[key] = {"arm": name, "auc": _ci(a["auc"]), "diff": f"{d:+.1f} [{lo:+.1f}, {hi:+.1f}], p = {p:.2f}",
+                        "reached": f"{_reached(a)}/{len(a['auc'])}", "frames": float(_frames(a).mean()),
+                        "auc_mean": float(np.mean(a["auc"])), "auc_values": a["auc"]}
+        best, orc = row["best"], row["oracle"]
+        if best is not None:
+            never = _reached(b) == 0 and _reached(arms[best_name]) == len(arms[best_name]["auc"])
+            row["faster"] = bool(never or best["frames"] <= 0.5 * row["base_frames"])
+            if orc is not None and len(orc["auc_values"]) >= 3:
+                _, lo, _ = mean_ci(orc["auc_values"])
+                row["as_good_as_true"] = bool(best["auc_mean"] >= lo)
+            else:
+                row["as_good_as_true"] = None
+        rows.append(row)
+    return rows
+
+
+def headline_markdown(rows: list[dict[str, Any]]) -> str:
+    lines = ["| env | RL base (a2c) AUC | paper's hybrid AUC (− base) | best inferred-label arm: AUC (− base) | "
+             "oracle AUC | frames to 90 %: base / best | faster? | labels as good as true? |",
+             "|---|---|---|---|---|---|---|---|"]
+
+    def cell(x, full=True):
+        if x is None:
+            return "not run"
+        return f"{x['auc']} ({x['diff']})" if full else x["auc"]
+
+    for r in rows:
+        best = r["best"]
+        frames = (f"{r['base_frames'] / 1e3:.0f}k ({r['base_reached']}) / {best['frames'] / 1e3:.0f}k "
+                  f"({best['reached']})" if best else "-")
+        yes = {True: "**yes**", False: "no", None: "-"}
+        lines.append(f"| [{r['env']}]({r['out_dir']}/README.md) | {r['base']} | {cell(r['paper'])} | "
+                     f"{'`' + best['arm'] + '`: ' + cell(best) if best else '-'} | {cell(r['oracle'], False)} | "
+                     f"{frames} | {yes[r.get('faster')]} | {yes[r.get('as_good_as_true')]} |")
+    return "\n".join(lines)
+
+
+def update_readme_block(readme: str | Path, table: str) -> None:
+    """Replaces the README's headline block with ``table``."""
+    path = Path(readme)
+    text = path.read_text()
+    if START not in text or END not in text:
+        raise ValueError(f"{path} has no {START} ... {END} block to write the headline table into")
+    head, rest = text.split(START, 1)
+    _, tail = rest.split(END, 1)
+    path.write_text(f"{head}{START}\n{table}\n{END}{tail}")
