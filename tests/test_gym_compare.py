@@ -68,3 +68,33 @@ def test_named_and_own_arms_run_with_their_settings_and_against_their_base(tmp_p
         GymCompareConfig(base=FROZEN, arms={"a2c": {"variant": "a2c"}}, out_dir=str(tmp_path)).validate()
     with pytest.raises(ValueError, match="must be a mapping with variant"):
         GymCompareConfig(base=FROZEN, arms={"x": {"variant": "ppo"}}, out_dir=str(tmp_path)).validate()
+
+
+def test_headline_states_both_goals_from_each_comparisons_numbers(tmp_path):
+    from torchrl_hybrid.experiments.headline import headline_markdown, headline_rows, update_readme_block
+
+    def arm(variant, auc, frames, base=None):
+        return {"variant": variant, "base": base, "seeds": list(range(len(auc))), "auc": auc, "final": auc,
+                "frames_to_reach": frames, "budget": 100_000.0, "idm_accuracy_expert_end": [None] * len(auc),
+                "entropy_end": [None] * len(auc)}
+
+    (tmp_path / "env").mkdir()
+    (tmp_path / "env" / "summary.json").write_text(json.dumps({
+        "env_id": "X", "expert_return": 500.0, "random_return": 20.0, "threshold": 452.0, "reach_share": 0.9,
+        "reference": "a2c", "arms": {
+            "a2c": arm("a2c", [100, 110, 120, 105, 115], [80_000, 90_000, None, 70_000, 85_000]),
+            "hybrid_dual": arm("hybrid_dual", [105, 112, 118, 100, 111], [None] * 5),
+            "hybrid_dual_utd4": arm("hybrid_dual", [300, 310, 290, 305, 295], [30_000, 35_000, 40_000, 30_000, 32_000],
+                                    base="hybrid_dual"),
+            "hybrid_true": arm("hybrid_true", [290, 320, 300, 310, 300], [30_000] * 5)}}))
+    (row,) = headline_rows({"X": tmp_path / "env"})
+    assert row["best"]["arm"] == "hybrid_dual_utd4"  # the best arm with inferred labels, not the oracle
+    assert row["base_frames"] == (80_000 + 90_000 + 100_000 + 70_000 + 85_000) / 5  # never reached: the budget
+    assert row["faster"] is True and row["as_good_as_true"] is True
+    assert row["paper"]["diff"].startswith("-0.8 [")
+    table = headline_markdown([row])
+    assert "`hybrid_dual_utd4`" in table and "| **yes** | **yes** |" in table
+    readme = tmp_path / "README.md"
+    readme.write_text("intro\n<!-- headline:start -->\nold\n<!-- headline:end -->\nrest\n")
+    update_readme_block(readme, table)
+    assert readme.read_text().startswith("intro\n<!-- headline:start -->\n| env |") and "old" not in readme.read_text()
