@@ -855,3 +855,20 @@ def test_init_from_refuses_another_game_or_a_missing_file(tmp_path):
     with pytest.raises(ValueError, match="is not a model.pt written by this pipeline"):
         train_atari(tiny(tmp_path / "d", variant="a2c", init_from=str(tmp_path / "junk.pt")))
     assert not (tmp_path / "b" / "summary.json").exists()  # a refused run writes no results
+
+
+def test_oracle_arm_and_the_balance_and_label_options_run_on_atari(pong_demos, tmp_path):
+    """hybrid_true (BC on the demos' true actions: a diagnostic), the BC gradient clipped apart,
+    prior-corrected labels and extra BC / inverse-model updates, in the Atari pipeline."""
+    demo = {"path": str(pong_demos / "demos")}
+    s = train_atari(tiny(tmp_path / "a", variant="hybrid_dual", demo=demo, optim={"clip": "per_term"},
+                         loss={"bc_prior_floor": 0.05, "bc_updates": 1, "idm_updates": 1}))
+    rows = list(csv.DictReader((tmp_path / "a" / "metrics.csv").open()))
+    assert s["frames"] == 256 and {"grad_norm_rl", "grad_norm_inverse_model", "grad_norm_bc"} <= set(rows[-1])
+    s = train_atari(tiny(tmp_path / "b", variant="hybrid_true", demo=demo))
+    rows = list(csv.DictReader((tmp_path / "b" / "metrics.csv").open()))
+    assert s["frames"] == 256 and "loss_bc" in rows[-1] and "loss_inverse" not in rows[-1]
+    with pytest.raises(ValueError, match="clones the expert's true actions"):
+        train_atari(tiny(tmp_path / "c", variant="hybrid_true", demo=demo, loss={"bc_labels": "soft"}))
+    with pytest.raises(ValueError, match="built for the gymnasium family"):
+        tiny(tmp_path / "d", variant="hybrid_dual", demo=demo, loss={"explore_envs": 1}).validate()
