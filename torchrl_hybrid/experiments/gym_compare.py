@@ -45,7 +45,10 @@ GYM_ARMS: dict[str, dict] = {
     "hybrid_dual_prior": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_prior_floor": 0.05}},
     # ... or 4 of the 16 env slots acting uniformly at random, for the inverse model only
     "hybrid_dual_explore": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"explore_envs": 4}},
-    # both fixes at once: labels from explorer slots, and 4 more BC and inverse-model updates per batch
+    # both fixes at once: prior-corrected labels, or labels from explorer slots, and 4 more BC and
+    # inverse-model updates per batch
+    "hybrid_dual_prior_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual_utd4",
+                               "loss": {"bc_prior_floor": 0.05, "bc_updates": 4, "idm_updates": 4}},
     "hybrid_dual_explore_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual_utd4",
                                  "loss": {"explore_envs": 4, "bc_updates": 4, "idm_updates": 4}},
 }
