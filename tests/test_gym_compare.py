@@ -61,10 +61,10 @@ def test_named_and_own_arms_run_with_their_settings_and_against_their_base(tmp_p
     assert rows["mine"]["option_effect"].startswith("auc − hybrid_dual: ")
     assert rows["hybrid_dual"]["idm_accuracy_expert_end"] != "" and rows["hybrid_dual"]["entropy_end"] != ""
     assert result["threshold"] == pytest.approx(result["random_return"] + 0.9 * (1.0 - result["random_return"]))
-    for bad, match in ((["nope"], "unknown variant or arm 'nope'"),):
+    for bad, match in ((["nope"], r"unknown variant\(s\) or arm\(s\) \['nope'\]"),):
         with pytest.raises(ValueError, match=match):
             GymCompareConfig(base=FROZEN, variants=bad, out_dir=str(tmp_path)).validate()
-    with pytest.raises(ValueError, match="is a variant's name"):
+    with pytest.raises(ValueError, match="an arm cannot take a variant's name"):
         GymCompareConfig(base=FROZEN, arms={"a2c": {"variant": "a2c"}}, out_dir=str(tmp_path)).validate()
     with pytest.raises(ValueError, match="must be a mapping with variant"):
         GymCompareConfig(base=FROZEN, arms={"x": {"variant": "ppo"}}, out_dir=str(tmp_path)).validate()

@@ -130,21 +130,11 @@ class CompareConfig:
         return out
 
     def validate(self) -> "CompareConfig":
+        from torchrl_hybrid.experiments.arms import check_arms
         from torchrl_hybrid.trainers.atari import ATARI_VARIANTS
         from torchrl_hybrid.trainers.hybrid import get_variant
 
-        for name, spec in self.arms.items():
-            if name in ATARI_VARIANTS:
-                raise ValueError(f"arms.{name}: an arm cannot take a variant's name; call it e.g. {name}_mine")
-            if not isinstance(spec, dict) or spec.get("variant") not in ATARI_VARIANTS:
-                raise ValueError(f"arms.{name} must be a mapping with variant: one of {list(ATARI_VARIANTS)} "
-                                 f"(plus AtariConfig overrides), got {spec!r}")
-        for name, spec in self.all_arms.items():
-            base = spec.get("base")
-            if base is not None and (not isinstance(base, str) or base == name
-                                     or base not in set(ATARI_VARIANTS) | set(self.all_arms)):
-                raise ValueError(f"arms.{name}.base={base!r}: name the variant or arm this one adds an option to "
-                                 f"(one of {list(ATARI_VARIANTS)} or {[a for a in self.all_arms if a != name]})")
+        check_arms(self.arms, self.all_arms, ATARI_VARIANTS, (), "plus AtariConfig overrides")
         bad = sorted(set(self.variants) - set(ATARI_VARIANTS) - set(self.all_arms))
         if bad:
             raise ValueError(f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)} "

@@ -85,24 +85,10 @@ class GymCompareConfig:
         return {k: v for k, v in spec.items() if k != "base"}
 
     def validate(self) -> "GymCompareConfig":
-        from torchrl_hybrid.trainers.hybrid import VARIANTS, get_variant
+        from torchrl_hybrid.experiments.arms import check_arms
+        from torchrl_hybrid.trainers.hybrid import VARIANTS
 
-        for name, spec in self.arms.items():
-            if name in VARIANTS:
-                raise ValueError(f"arms.{name}: {name!r} is a variant's name; give the arm another name")
-            if not isinstance(spec, dict) or spec.get("variant") not in VARIANTS:
-                raise ValueError(f"arms.{name} must be a mapping with variant: one of {list(VARIANTS)} "
-                                 f"(and settings over the base), got {spec!r}")
-            base = spec.get("base")
-            if base is not None and base not in set(VARIANTS) | set(self.all_arms):
-                raise ValueError(f"arms.{name}.base={base!r} is neither a variant nor an arm")
-        for v in self.variants:
-            if v not in self.all_arms:
-                try:
-                    get_variant(v)
-                except ValueError:
-                    raise ValueError(f"unknown variant or arm {v!r}; variants: {', '.join(VARIANTS)}; arms: "
-                                     f"{', '.join(self.all_arms)}") from None
+        check_arms(self.arms, self.all_arms, VARIANTS, self.variants, "plus TaxiConfig settings over the base")
         if self.workers < 1:
             raise ValueError(f"compare.workers must be >= 1, got {self.workers}")
         if not self.seeds:
