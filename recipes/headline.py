@@ -28,7 +28,9 @@ def main(argv: list[str]) -> None:
     missing = [k for k in studies if k not in present]
     table = headline_markdown(headline_rows(present))
     if missing:
-        table += "\n\nNot run yet: " + ", ".join(missing) + "."
+        table += ("\n\nNo comparison of this form yet (5 seeds with the oracle arm): " + ", ".join(missing)
+                  + ". Taxi's and FrozenLake's hybrid-vs-A2C results are the sweeps in results/taxi and "
+                  "results/frozenlake_8x8.")
     print(table)
     if not argv:
         update_readme_block(ROOT / "README.md", table)
