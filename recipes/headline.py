@@ -23,6 +23,9 @@ STUDIES = {"CartPole-v1": "results/cartpole/compare", "Acrobot-v1": "results/acr
 
 def main(argv: list[str]) -> None:
     os.chdir(ROOT)  # the links in the table are relative to the README
+    bad = [a for a in argv if "=" not in a]
+    if bad:
+        raise ValueError(f"{bad}: give each study as label=out_dir, e.g. cartpole=results/cartpole/compare")
     studies = dict(a.split("=", 1) for a in argv) if argv else STUDIES
     present = {k: v for k, v in studies.items() if (Path(v) / "summary.json").exists()}
     missing = [k for k in studies if k not in present]
@@ -37,4 +40,8 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    try:
+        main(sys.argv[1:])
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)

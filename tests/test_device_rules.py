@@ -414,3 +414,34 @@ def test_device_auto_keeps_tabular_and_small_mlp_runs_on_the_cpu(tmp_path):
             run = build_atari(_atari(tmp_path / "atari", variant="a2c", device="auto"))
             close_run(run)
             assert run.device == check.device
+
+
+def test_a_checkpoint_from_before_the_random_state_resumes_with_a_warning(tmp_path, monkeypatch):
+    """Checkpoints written before RandomStateHook existed lack only that component: they
+    resume (not bit-exactly, said in a warning)."""
+    import torchrl_hybrid.trainers.taxi as taxi
+
+    cart = {"env": {"env_id": "CartPole-v1", "num_envs": 4, "max_episode_steps": 50}, "loss": {"n_steps": 5},
+            "d_state": 16, "d": 16, "encoder": {"hidden": 16}, "variant": "a2c", "device": "cpu",
+            "demo": {"rho": "uniform"}}
+    with monkeypatch.context() as m:  # a checkpoint as the code before this hook wrote it
+        m.setattr(taxi.GymFamily, "register_late_hooks", lambda self, run: None)
+        taxi.train_taxi(_taxi(tmp_path, total_frames=400, **cart))
+    with pytest.warns(UserWarning, match="written before checkpoints held the random state"):
+        s = taxi.train_taxi(_taxi(tmp_path, total_frames=800, resume=True, **cart))
+    assert s["resumed_from_frames"] == 400 and s["frames"] == 800
+
+
+@pytest.mark.parametrize("kw", [
+    {"variant": "hybrid_dual", "optim": {"clip": "per_term"}, "demo": {"rho": "uniform"},
+     "loss": {"bc_prior_floor": 0.05, "bc_updates": 2, "idm_updates": 1, "explore_envs": 4}},
+    {"variant": "hybrid_true", "rl": "ppo", "loss": {"bc_updates": 1, "explore_envs": 4}},
+])
+def test_the_balance_label_and_ppo_options_keep_the_device_rules(tmp_path, kw):
+    from torchrl_hybrid.trainers.taxi import train_taxi
+
+    with DeviceRuleCheck() as check:
+        s = train_taxi(_taxi(tmp_path, **kw))
+    assert s["frames"] == 640
+    steps = 640 // 32 * (16 if kw.get("rl") == "ppo" else 1)  # PPO: 4 epochs x 4 minibatches per batch
+    _assert_clean(check, steps, 40, f"Taxi {kw} (per optimisation step)")

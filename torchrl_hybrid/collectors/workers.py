@@ -35,8 +35,8 @@ def worker_devices(kind: str, worker_gpus: float = 0.0) -> dict[str, str]:
     if worker_gpus < 0:
         raise ValueError(f"collector.worker_gpus={worker_gpus} must be >= 0")
     if worker_gpus > 0 and kind != "ray":
-        raise ValueError(f"collector.worker_gpus={worker_gpus} is a Ray setting (GPUs per actor); "
-                         f"{kind} workers run their policy on the CPU")
+        raise ValueError(f"collector.worker_gpus={worker_gpus} is a Ray setting (the GPU share of each Ray actor); "
+                         f"{kind!r} collection does not use it")
     dev = "cuda" if worker_gpus > 0 else "cpu"
     return {"env_device": "cpu", "policy_device": dev, "storing_device": dev}
 

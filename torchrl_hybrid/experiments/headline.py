@@ -17,12 +17,12 @@ RL base is the objective's, the best inferred arm against the oracle is the labe
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
 __all__ = ["headline_rows", "headline_markdown", "update_readme_block"]
@@ -51,7 +51,7 @@ def headline_rows(studies: dict[str, str | Path], base: str = "a2c", paper: str 
     """One row per env: ``studies`` maps an env's label to its comparison's out_dir."""
     rows = []
     for label, out_dir in studies.items():
-        summary = json.loads((Path(out_dir) / "summary.json").read_text())
+        summary = read_json(Path(out_dir) / "summary.json", "comparison summary (recipes/compare.py rewrites it)")
         arms = summary["arms"]
         if base not in arms:
             raise ValueError(f"{out_dir}: no {base!r} runs to compare against")

@@ -70,9 +70,6 @@ class HybridLoss(LossModule):
     def in_keys(self):
         return [self.tensor_keys.agent, self.tensor_keys.expert]
 
-    #: the component losses, by the name their outputs are grouped under in :meth:`forward_parts`
-    PARTS = ("rl", "inverse_model", "bc")
-
     def forward_parts(self, tensordict: TensorDictBase) -> dict[str, TensorDictBase]:
         """Each component's outputs on its own batch: ``{"rl": ..., "inverse_model": ...,
         "bc": ...}`` (absent components left out). :meth:`forward` merges them; an optimiser
@@ -107,9 +104,9 @@ class HybridLoss(LossModule):
         if key not in sub.keys():
             return sub
         explore = sub.get(key)
-        if sub.ndim == 2:
-            return sub[~explore[:, 0]]
-        return sub[~explore.reshape(sub.shape)]
+        keep = ~explore[:, 0] if sub.ndim == 2 else ~explore.reshape(sub.shape)
+        # integer rows: one device-to-host sync (a boolean mask on a TensorDict reads it once per entry)
+        return sub[keep.nonzero().squeeze(-1)]
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         out = TensorDict({}, [])

@@ -2,9 +2,10 @@
 
 :class:`DeviceRuleCheck` is a context manager under which ``device="cuda"`` resolves to a
 stand-in device. Tensors "on" it are :class:`StandInTensor` objects: they report
-``device.type == "meta"``, hold their data in a CPU tensor, and every op on them runs on
-the CPU, through a ``TorchDispatchMode`` that applies CUDA's rules first and records each
-breach with the source line that caused it:
+``device.type == "standin"``, hold their data in a CPU tensor, and every op on them runs on
+the CPU (through the subclass's ``__torch_dispatch__``, or the stand-in backend's kernels for
+factories such as ``torch.empty(..., device=...)``), after CUDA's rules are applied and each
+breach is recorded with the source line that caused it:
 
 - an op that mixes stand-in tensors with CPU tensors of ``ndim > 0`` (CUDA raises
   "Expected all tensors to be on the same device"; 0-dim CPU tensors are allowed, as on
@@ -41,7 +42,7 @@ import sys
 import sysconfig
 import traceback
 from dataclasses import dataclass
-from typing import Any, Iterator
+from typing import Any
 
 import torch
 from torch.utils._pytree import tree_flatten, tree_map
@@ -308,16 +309,6 @@ class DeviceRuleCheck:
         finally:
             DeviceRuleCheck._active.remove(self)
 
-    @contextlib.contextmanager
-    def paused(self) -> Iterator[None]:
-        """Ops run as plain CPU ops inside this block (e.g. a test's own reference run)."""
-        with torch.utils._python_dispatch._disable_current_modes():
-            DeviceRuleCheck._active.remove(self)
-            try:
-                yield
-            finally:
-                DeviceRuleCheck._active.append(self)
-
     # -- reports ---------------------------------------------------------------------
     def total_syncs(self) -> int:
         return sum(self.syncs.values())
@@ -424,8 +415,6 @@ class DeviceRuleCheck:
         args_, kwargs_ = tree_map(unwrap, args), tree_map(unwrap, kwargs)
         if _is_stand_in_device(kwargs_.get("device")):
             kwargs_["device"] = torch.device("cpu")
-        if "device" in kwargs_ and kwargs_["device"] is None and out_on_dev:
-            pass
         if kwargs_.get("pin_memory"):
             kwargs_["pin_memory"] = False
         out = func(*args_, **kwargs_)

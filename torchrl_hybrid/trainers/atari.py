@@ -189,9 +189,7 @@ class AtariConfig(RunConfig):
         if self.collector.backend in WORKER_KINDS and (self.collector.workers < 1
                                                         or self.env.num_envs % self.collector.workers):
             raise ValueError(f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
-        if self.collector.backend in WORKER_KINDS or self.collector.worker_gpus:
-            worker_devices(self.collector.backend if self.collector.backend in WORKER_KINDS else "atari",
-                           self.collector.worker_gpus)
+        worker_devices(self.collector.backend, self.collector.worker_gpus)  # worker_gpus: Ray only
         if self.collector.env_groups < 1 or self.env.num_envs % self.collector.env_groups:
             raise ValueError(f"collector.env_groups={self.collector.env_groups} must divide "
                              f"env.num_envs={self.env.num_envs}")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -10,7 +11,7 @@ import torch
 from torchrl.objectives import A2CLoss, ClipPPOLoss, ValueEstimators
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
-from torchrl.checkpoint import Checkpoint
+from torchrl.checkpoint import Checkpoint, CheckpointError
 from torchrl.trainers import OptimizationStepper, Trainer
 
 from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
@@ -420,7 +421,17 @@ def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str,
     if (ckpt / "manifest.json").exists():  # TorchRL's checkpoint format: the list of its components
         read_json(ckpt / "manifest.json", "checkpoint manifest")
     check_memmap_folder(ckpt)
-    trainer.load_from_file(ckpt)
+    try:
+        trainer.load_from_file(ckpt)
+    except CheckpointError as err:
+        # checkpoints written before the random state was saved (RandomStateHook) lack only that
+        # component: they resume, with a warning; anything else missing stays an error
+        missing = set(getattr(err.result, "missing", None) or ())
+        if not missing or not missing <= {"trainer_module.random_state"} or getattr(err.result, "incompatible", None):
+            raise
+        warnings.warn(f"resume: {ckpt} was written before checkpoints held the random state; the run goes on "
+                      "from its weights, optimiser and samplers, but not bit-exactly", stacklevel=2)
+        trainer.load_from_file(ckpt, strict="ignore")
     frames = int(trainer.collected_frames)
     print(f"resume: continuing from {frames:,} frames ({ckpt})", file=sys.stderr)
 

@@ -192,10 +192,7 @@ class TaxiConfig(RunConfig):
             need(self.collector.workers >= 1 and self.env.num_envs % self.collector.workers == 0,
                  f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
             need(self.engine == "torchrl", "collector.kind=multi_sync|ray needs engine=torchrl")
-            worker_devices(self.collector.kind, self.collector.worker_gpus)
-        need(self.collector.worker_gpus == 0 or self.collector.kind == "ray",
-             f"collector.worker_gpus={self.collector.worker_gpus} is a Ray setting (GPUs per actor); "
-             f"collector.kind={self.collector.kind!r}")
+        worker_devices(self.collector.kind, self.collector.worker_gpus)  # worker_gpus: Ray only
         need(self.rank >= 1, f"rank must be an integer >= 1, got {self.rank}")
         need(self.mlp_layers >= 1, f"mlp_layers must be >= 1, got {self.mlp_layers}")
         for name in ("eta", "epsilon"):
@@ -209,10 +206,10 @@ class TaxiConfig(RunConfig):
         self.loss.validate()
         self.optim.validate()
         self.validate_rl()
-        need(self.loss.explore_envs < self.env.num_envs // max(1, self.collector.workers if self.collector.kind != "single"
-                                                                else 1),
-             f"loss.explore_envs={self.loss.explore_envs} must leave at least one env (per worker) following the "
-             f"policy: env.num_envs={self.env.num_envs}")
+        envs_per_worker = self.env.num_envs // (self.collector.workers if self.collector.kind != "single" else 1)
+        need(self.loss.explore_envs < envs_per_worker,
+             f"loss.explore_envs={self.loss.explore_envs} must leave at least one env following the policy in each "
+             f"collector ({envs_per_worker} envs each)")
         need(self.rl == "a2c" or self.engine == "torchrl", f"rl={self.rl} needs engine=torchrl (the batched engine is "
              "the paper's A2C)")
         need(
