@@ -13,7 +13,7 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e ".[test]"
+	$(PY) -m pip install -q -e ".[test,tensorboard]"
 	touch $@
 
 install: $(VENV)/.installed
@@ -30,4 +30,4 @@ test-cuda: $(VENV)/.installed
 	TORCHRL_HYBRID_TEST_DEVICE=cuda $(PY) -m pytest -q tests
 
 clean:
-	rm -rf $(VENV) outputs .pytest_cache
+	rm -rf $(VENV) outputs .pytest_cache .hypothesis

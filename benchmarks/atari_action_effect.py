@@ -13,26 +13,36 @@ game, the share of states where no action changes the next screen, where all do,
 mean number of distinguishable action classes; writes ``--out`` (JSON) and ``--plot``
 (a figure: the share of states by number of distinguishable actions) if given.
 ``--from results/atari/action_effect.json`` redraws a saved result without playing.
+A smoke run: ``--games Pong --states 3``.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 
 import numpy as np
 
 
-def action_classes(game: str, states: int, seed: int = 0, frameskip: int = 4) -> dict:
-    from ale_py import ALEInterface, LoggerMode, roms
+def rom_path(game: str) -> str:
+    """ale-py's ROM of ``game`` (BeamRider -> beam_rider); ``ValueError`` if it has none."""
+    from ale_py import roms
 
+    rom = roms.get_rom_path(re.sub(r"(?<!^)(?=[A-Z])", "_", game).lower())
+    if rom is None:
+        raise ValueError(f"no ROM for {game!r} in ale-py")
+    return rom
+
+
+def action_classes(game: str, states: int, seed: int = 0, frameskip: int = 4) -> dict:
+    from ale_py import ALEInterface, LoggerMode
+
+    rom = rom_path(game)
     ALEInterface.setLoggerMode(LoggerMode.Error)
     ale = ALEInterface()
     ale.setInt("random_seed", seed)
     ale.setFloat("repeat_action_probability", 0.0)
-    rom = roms.get_rom_path(re.sub(r"(?<!^)(?=[A-Z])", "_", game).lower())  # BeamRider -> beam_rider
-    if rom is None:
-        raise ValueError(f"no ROM for {game!r} in ale-py")
     ale.loadROM(rom)
     actions = list(ale.getMinimalActionSet())
     rng = np.random.default_rng(seed)
@@ -96,13 +106,25 @@ def main() -> None:
     p.add_argument("--plot", default=None, help="write the figure (PNG)")
     p.add_argument("--from", dest="source", default=None, help="read saved results (JSON) instead of playing")
     args = p.parse_args()
+    for flag, path in (("--out", args.out), ("--plot", args.plot)):
+        if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
+            p.error(f"{flag} {path}: its folder does not exist")
     if args.source:
         try:
             with open(args.source) as f:
                 results = json.load(f)
         except (OSError, json.JSONDecodeError) as err:
-            raise SystemExit(f"error: --from {args.source}: {err}") from None
+            p.error(f"--from {args.source}: {err}")
+        if not isinstance(results, list) or not results:
+            p.error(f"--from {args.source}: not a list of results written by --out")
     else:
+        if args.states < 1:
+            p.error(f"--states must be >= 1, got {args.states}")
+        for game in args.games:
+            try:
+                rom_path(game)
+            except ValueError as err:
+                p.error(str(err))
         results = [action_classes(g, args.states, args.seed) for g in args.games]
     print(f"{'game':>10} {'actions':>7} {'no action visible':>18} {'all distinct':>13} {'mean classes':>13}")
     for r in results:

@@ -5,7 +5,8 @@
 Plays each checkpoint's policy (sampling, as in training) in 4 envs for ``--steps``
 steps and prints the action frequencies overall and over the first 20 steps after
 each lost life (where Breakout needs FIRE to serve again). Action ids are the
-game's minimal action set (Breakout: 0 NOOP, 1 FIRE, 2 RIGHT, 3 LEFT).
+game's minimal action set (Breakout: 0 NOOP, 1 FIRE, 2 RIGHT, 3 LEFT). A smoke run:
+``--steps 5``.
 """
 from __future__ import annotations
 
@@ -47,6 +48,13 @@ def main() -> None:
     p.add_argument("checkpoints", nargs="+", help="model.pt files written by train_atari")
     p.add_argument("--steps", type=int, default=1500)
     a = p.parse_args()
+    if a.steps < 1:
+        p.error(f"--steps must be >= 1, got {a.steps}")
+    for path in a.checkpoints:  # every checkpoint is readable before the first one plays
+        try:
+            load_expert(path)
+        except (ValueError, FileNotFoundError) as err:
+            p.error(str(err))
     torch.set_num_threads(1)
     for path in a.checkpoints:
         u = action_usage(path, a.steps)

@@ -4,6 +4,7 @@ side by side in one run: milliseconds for the learner's forward + backward of a 
 
     python benchmarks/atari_compile.py                       # CPU, 2 threads
     python benchmarks/atari_compile.py --device cuda --modes default reduce-overhead
+    python benchmarks/atari_compile.py --rounds 1 --reps 1 --threads 1     # a smoke run
 
 Rounds alternate between the variants (plain, then each compile mode), after a warm-up
 that includes the compilation (its time is printed apart), and the median is reported.
@@ -34,8 +35,14 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=7)
     p.add_argument("--reps", type=int, default=10, help="calls per round")
     args = p.parse_args()
+    for name in ("threads", "rounds", "reps"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name} must be >= 1, got {getattr(args, name)}")
+    try:
+        device = resolve_device(args.device)
+    except ValueError as err:
+        p.error(str(err))
     torch.set_num_threads(args.threads)
-    device = resolve_device(args.device)
     torch.manual_seed(0)
     plain = AtariEncoder().to(device)
     plain.reuse_features = False  # time the CNN itself

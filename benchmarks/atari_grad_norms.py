@@ -49,15 +49,21 @@ def main() -> None:
     p.add_argument("--games", nargs="+", required=True)
     p.add_argument("--json", default=None, help="write the result as JSON")
     args = p.parse_args()
+    if not Path(args.out_dir).is_dir():
+        p.error(f"{args.out_dir}: no such folder")
+    if args.json and not Path(args.json).resolve().parent.is_dir():
+        p.error(f"--json {args.json}: its folder does not exist")
+    runs = {}
+    for game in args.games:  # every game has runs before the first one is read
+        runs[game] = sorted(d for d in (Path(args.out_dir) / game).glob("*_s*") if (d / "summary.json").exists())
+        if not runs[game]:
+            p.error(f"no finished run (<arm>_s<seed>/summary.json) in {Path(args.out_dir) / game}")
     result = {}
     head = "  ".join(f"{lo / 1e6:g}-{hi / 1e6:g}M" for lo, hi in WINDOWS)
     for game in args.games:
-        runs = sorted(d for d in (Path(args.out_dir) / game).glob("*_s*") if (d / "summary.json").exists())
-        if not runs:
-            raise SystemExit(f"error: no finished run in {Path(args.out_dir) / game}")
         print(f"{game}: mean gradient norm before the clip ({head})")
         result[game] = []
-        for d in runs:
+        for d in runs[game]:
             r = grad_norms(d)
             result[game].append(r)
             print(f"  {d.name:32s} " + "  ".join(f"{g:8.3f}" for g in r["mean_grad_norm"]) + f"   clip {r['clip']}"

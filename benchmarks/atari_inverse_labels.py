@@ -146,6 +146,11 @@ def main() -> None:
     p.add_argument("--plot", default=None, help="write the figure (PNG)")
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
+    if args.threads < 1:
+        p.error(f"--threads must be >= 1, got {args.threads}")
+    for flag, path in (("--out", args.out), ("--plot", args.plot)):
+        if path and not Path(path).resolve().parent.is_dir():
+            p.error(f"{flag} {path}: its folder does not exist")
     torch.set_num_threads(args.threads)
     try:
         r = inverse_labels(args.model, args.demos)

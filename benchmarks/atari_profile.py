@@ -1,11 +1,12 @@
 """Where the time of an Atari training run goes, per collected batch.
 
     python benchmarks/atari_profile.py --game Pong --steps 8000
+    python benchmarks/atari_profile.py --steps 10 --num-envs 2 --threads 1        # a smoke run
 
 Builds the same run as ``recipes/atari.py`` (:func:`build_atari`: AtariCollector,
 collection features kept for the learner), times its parts with wall-clock
 wrappers (no profiler overhead) while it trains, and prints
-milliseconds per batch of 16 envs x 5 steps = 80 agent steps for ``a2c`` and
+milliseconds per batch of 16 envs (``--num-envs``) x 5 steps = 80 agent steps for ``a2c`` and
 ``hybrid_dual`` (BC term on from the start), next to the floors: ale-py stepping
 the same envs with no learner, and the bare CNN (no-grad forward of 16 frame
 stacks, forward + backward of 80).
@@ -20,7 +21,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import torch
-from atari_throughput import bench_config, bench_demos, floors  # benchmarks/ (the script's own folder)
+from atari_throughput import bench_config, bench_demos, check_args, floors  # benchmarks/ (the script's own folder)
 
 logging.getLogger("torchrl").setLevel(logging.WARNING)
 
@@ -42,10 +43,10 @@ def _timed(fn, timers, name, cuda: bool = False):
 
 
 def profile_run(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int,
-                device: str = "cpu") -> dict:
+                device: str = "cpu", num_envs: int = 16) -> dict:
     from torchrl_hybrid.trainers.atari import build_atari
 
-    run = build_atari(bench_config(variant, game, steps, out, demos, threads, device=device))
+    run = build_atari(bench_config(variant, game, steps, out, demos, threads, device=device, num_envs=num_envs))
     timers: dict[str, float] = defaultdict(float)
     cuda = run.device.type == "cuda"
     collector = run.trainer.collector
@@ -77,18 +78,19 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=8000, help="agent steps per run (x4 game frames)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--device", default="cpu", help="cpu | cuda | auto: where the learner runs")
+    p.add_argument("--num-envs", type=int, default=16)
     a = p.parse_args()
-    from torchrl_hybrid.utils.device import resolve_device
-
-    device = str(resolve_device(a.device))
-    with tempfile.TemporaryDirectory() as tmp:
+    device = check_args(p, a, a.num_envs)
+    torch.set_num_threads(a.threads)  # --threads: torch's too, for every measurement (not only SB3's and the floors')
+    batch = 5 * a.num_envs
+    with tempfile.TemporaryDirectory() as tmp:  # scratch: the runs, the demos
         tmp = Path(tmp)
-        demos = bench_demos(a.game, tmp)
-        runs = {"a2c": profile_run("a2c", a.game, a.steps, tmp, None, a.threads, device),
-                "hybrid_dual": profile_run("hybrid_dual", a.game, a.steps, tmp, demos, a.threads, device)}
-    fl = floors(a.game, a.threads, device, 16, channels_last_too=True)
-    print(f"\n{a.game}: milliseconds per batch of 80 agent steps (16 envs x 5), {a.steps:,} steps a run, "
-          f"learner on {device}")
+        demos = bench_demos(a.game, tmp, a.num_envs)
+        runs = {"a2c": profile_run("a2c", a.game, a.steps, tmp, None, a.threads, device, a.num_envs),
+                "hybrid_dual": profile_run("hybrid_dual", a.game, a.steps, tmp, demos, a.threads, device, a.num_envs)}
+    fl = floors(a.game, a.threads, device, a.num_envs, channels_last_too=True)
+    print(f"\n{a.game}: milliseconds per batch of {batch} agent steps ({a.num_envs} envs x 5), {a.steps:,} steps "
+          f"a run, learner on {device}")
     keys = ["collection (rollout) in all", "env: ale-py step (send + recv)", "policy: CNN + heads + sampling",
             "loss forward (A2C + IDM + BC)", "backward", "RMSprop step"]
     print(f"  {'':34s} {'a2c':>8s} {'hybrid_dual':>12s}")
@@ -100,7 +102,8 @@ def main() -> None:
         r["rest"] = r["total"] - sum(r.get(k, 0) for k in keys if not k.startswith(("env", "policy")))
     print(f"  {'rest (trainer, hooks, clip, demos)':34s} {runs['a2c']['rest']:8.1f} {runs['hybrid_dual']['rest']:12.1f}")
     print(f"  {'total':34s} {runs['a2c']['total']:8.1f} {runs['hybrid_dual']['total']:12.1f}")
-    print(f"  {'= agent steps/s':34s} {80000 / runs['a2c']['total']:8.0f} {80000 / runs['hybrid_dual']['total']:12.0f}")
+    print(f"  {'= agent steps/s':34s} {1000 * batch / runs['a2c']['total']:8.0f} "
+          f"{1000 * batch / runs['hybrid_dual']['total']:12.0f}")
     print("floors (same machine, same run):")
     for k, v in fl.items():
         print(f"  {k:34s} {v:8.1f} ms")

@@ -2,6 +2,7 @@
 
     python benchmarks/atari_throughput.py --game Pong --steps 16000                 # CPU (2 torch threads)
     python benchmarks/atari_throughput.py --device cuda --threads 16 --num-envs 64  # a GPU machine
+    python benchmarks/atari_throughput.py --steps 10 --num-envs 2 --threads 1 --no-sb3  # a smoke run
 
 Trains, with ``--num-envs`` environments each (the paper's 16 by default), our
 ``a2c`` and ``hybrid_dual`` variants (recipes/atari.py's pipeline: AtariCollector,
@@ -17,7 +18,7 @@ games with random actions, and the paper's CNN alone (no-grad forward of the
 envs' frames per step, forward + backward of a batch), summed per batch.
 
 Setup (env creation, demo recording) is not timed, nor is the inverse model's
-accuracy column (a logging diagnostic, ``logger.accuracy_pairs=0``).
+accuracy column (a logging diagnostic, ``logger.accuracy_pairs=0``: off).
 """
 from __future__ import annotations
 
@@ -49,12 +50,13 @@ def bench_config(variant: str, game: str, steps: int, out: Path, demos: Path | N
     return atari_config(cfg)
 
 
-def bench_demos(game: str, tmp: Path) -> Path:
-    """Demos for the hybrid's BC term from an untrained policy (the cost is what matters)."""
+def bench_demos(game: str, tmp: Path, num_envs: int = 16) -> Path:
+    """Demos for the hybrid's BC term from an untrained policy (the cost is what matters;
+    ``num_envs``: the untrained expert's envs, at most 16)."""
     from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari
 
     train_atari(atari_config({"variant": "a2c", "total_frames": 320, "out_dir": str(tmp / "expert"), "device": "cpu",
-                              "env": {"game": game, "num_envs": 16},
+                              "env": {"game": game, "num_envs": min(num_envs, 16)},
                               "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}))
     record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=8, num_envs=8, max_steps=200,
                  progress=False, device="cpu")
@@ -144,6 +146,23 @@ def floors(game: str, threads: int, device: str, num_envs: int, n_steps: int = 5
     return out
 
 
+def check_args(p: argparse.ArgumentParser, a: argparse.Namespace, num_envs: int) -> str:
+    """Refuses, before any run, settings that would fail in one; returns the device."""
+    from torchrl_hybrid.envs.atari import action_names
+    from torchrl_hybrid.utils.device import resolve_device
+
+    for name in ("threads", "num_envs"):
+        if getattr(a, name, 1) < 1:
+            p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(a, name)}")
+    if a.steps < 5 * num_envs:
+        p.error(f"--steps must be at least one batch ({num_envs} envs x 5 steps = {5 * num_envs}), got {a.steps}")
+    try:
+        action_names(a.game)
+        return str(resolve_device(a.device))
+    except ValueError as err:
+        p.error(str(err))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--game", default="Pong")
@@ -154,13 +173,12 @@ def main() -> None:
     p.add_argument("--all", action="store_true", help="also our a2c on TorchRL's Collector and with 2 env groups")
     p.add_argument("--no-sb3", action="store_true")
     a = p.parse_args()
-    from torchrl_hybrid.utils.device import resolve_device
-
-    device = str(resolve_device(a.device))
+    device = check_args(p, a, a.num_envs)
+    torch.set_num_threads(a.threads)  # --threads: torch's too, for every measurement (not only SB3's and the floors')
     kw = {"device": device, "num_envs": a.num_envs}
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp:  # scratch: the runs, the demos
         tmp = Path(tmp)
-        demos = bench_demos(a.game, tmp)
+        demos = bench_demos(a.game, tmp, a.num_envs)
         rows = [("ours: a2c", ours("a2c", a.game, a.steps, tmp, None, a.threads, **kw)),
                 ("ours: hybrid_dual", ours("hybrid_dual", a.game, a.steps, tmp, demos, a.threads, **kw))]
         if a.all:

@@ -6,10 +6,12 @@ training (the learner's own time is not included).
 
     python benchmarks/collectors.py                         # Taxi and CartPole, 16 envs
     python benchmarks/collectors.py --envs CartPole-v1 --workers 1 2 --batches 100
+    python benchmarks/collectors.py --envs Taxi-v4 --workers 1 --batches 2 --num-envs 2 --no-ray   # a smoke run
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import logging
 import time
 
@@ -23,13 +25,14 @@ def measure(env_id: str, kind: str, workers: int, batches: int, num_envs: int) -
     from torchrl_hybrid.modules import make_mlp_actor_critic, make_tabular_actor_critic
     from torchrl_hybrid.trainers.taxi import config_from_dict, make_collector
 
-    obs, size, _ = observation_kind(env_id)
+    obs, size, n_actions = observation_kind(env_id)
     n_steps = 2 if obs == "discrete" else 5
     cfg = config_from_dict({"env": {"env_id": env_id, "num_envs": num_envs,
                                     "max_episode_steps": 50 if obs == "discrete" else 500},
                             "loss": {"n_steps": n_steps}, "total_frames": num_envs * n_steps * (batches + 5),
                             "collector": {"kind": kind, "workers": workers}})
-    actor = (make_tabular_actor_critic(size, 6)[0] if obs == "discrete" else make_mlp_actor_critic(size, 2)[0])
+    actor = (make_tabular_actor_critic(size, n_actions)[0] if obs == "discrete"
+             else make_mlp_actor_critic(size, n_actions)[0])
     env = make_toy_text_env(env_id, num_envs, max_episode_steps=cfg.env.max_episode_steps, seed=0)
     collector = make_collector(cfg, env, actor, torch.device("cpu"))
     frames, t0 = 0, None
@@ -52,6 +55,23 @@ def main() -> None:
     ap.add_argument("--num-envs", type=int, default=16)
     ap.add_argument("--no-ray", action="store_true", help="skip RayCollector")
     args = ap.parse_args()
+    if args.batches < 2:  # the clock starts when a batch arrives: the first one after the warm-up is not counted
+        ap.error(f"--batches must be >= 2 (the rate is taken over batches - 1), got {args.batches}")
+    if args.num_envs < 1:
+        ap.error(f"--num-envs must be >= 1, got {args.num_envs}")
+    bad = [w for w in args.workers if w < 1 or args.num_envs % w]
+    if bad:
+        ap.error(f"--workers {bad}: each must be >= 1 and divide --num-envs {args.num_envs}")
+    if not args.no_ray and importlib.util.find_spec("ray") is None:
+        ap.error("RayCollector needs Ray (pip install 'ray>=2.9', or the project's [ray] extra); "
+                 "or pass --no-ray")
+    from torchrl_hybrid.envs import observation_kind
+
+    for env_id in args.envs:
+        try:
+            observation_kind(env_id)
+        except Exception as err:  # an unknown id, a space this pipeline does not take
+            ap.error(f"--envs {env_id}: {err}")
     torch.set_num_threads(1)
     kinds = ["multi_sync"] + ([] if args.no_ray else ["ray"])
     if not args.no_ray:

@@ -3,14 +3,17 @@ cluster, side by side in one run (the runs, seeds and settings are identical).
 
     python benchmarks/launchers.py                 # groups=[ranks], 4 seeds, 20k frames
     python benchmarks/launchers.py --workers 1 2
+    python benchmarks/launchers.py --seeds 1 --frames 32 --workers 1 --eval-episodes 1   # a smoke run
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import tempfile
 import time
 
-from torchrl_hybrid.experiments.taxi_sweep import SweepConfig, run_sweep
+from torchrl_hybrid.experiments.taxi_sweep import SweepConfig, configurations, run_sweep
+from torchrl_hybrid.utils.config import merge_dicts
 
 
 def main() -> None:
@@ -19,8 +22,25 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--frames", type=int, default=20_000)
     ap.add_argument("--workers", type=int, nargs="+", default=[2])
+    ap.add_argument("--eval-episodes", type=int, default=16, help="greedy episodes of each evaluation")
     args = ap.parse_args()
-    base = {"logger": {"log_every_frames": 4000, "eval_episodes": 16, "final_eval_episodes": 16}}
+    base = {"logger": {"log_every_frames": 4000, "eval_episodes": args.eval_episodes,
+                       "final_eval_episodes": args.eval_episodes}}
+    # refuse what would fail only inside the sweep
+    if args.seeds < 1:
+        ap.error(f"--seeds must be >= 1, got {args.seeds}")
+    if any(w < 1 for w in args.workers):
+        ap.error(f"--workers must each be >= 1, got {args.workers}")
+    if importlib.util.find_spec("ray") is None:
+        ap.error("the ray launcher needs Ray: pip install 'ray>=2.9' (or the project's [ray] extra)")
+    from torchrl_hybrid.trainers.taxi import config_from_dict
+
+    try:
+        for over in configurations(args.groups).values():
+            config_from_dict(merge_dicts(merge_dicts({"total_frames": args.frames, **base}, over),
+                                         {"out_dir": "unused"})).validate()
+    except ValueError as err:
+        ap.error(str(err))
     rows = []
     for workers in args.workers:
         for launcher in ("local", "ray"):

@@ -2,6 +2,7 @@
 
     python benchmarks/taxi_throughput.py            # ~2 minutes on a 2-core CPU
     python benchmarks/taxi_throughput.py --quick    # shorter measurements
+    python benchmarks/taxi_throughput.py --seconds 0.05 --frames 32 --seeds 2 --eval-episodes 1  # a smoke run
 
 Prints environment steps/s of TorchRL's GymEnv path and of our fast paths, and
 training frames/s of one seed (TorchRL collector + trainer) and of 16 seeds
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import tempfile
 import time
 
 import torch
@@ -31,9 +33,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="shorter measurements")
     parser.add_argument("--seeds", type=int, default=16, help="agents in the batched training measurement")
+    parser.add_argument("--seconds", type=float, default=None,
+                        help="seconds per environment measurement (default 5, 2 with --quick)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="frames per training measurement (default 24000, 8000 with --quick)")
+    parser.add_argument("--eval-episodes", type=int, default=None,
+                        help="greedy episodes of each evaluation in the training measurements (default: the "
+                             "runs' own, logger.eval_episodes and logger.final_eval_episodes)")
     args = parser.parse_args()
-    secs = 2.0 if args.quick else 5.0
-    frames = 8_000 if args.quick else 24_000
+    secs = args.seconds if args.seconds is not None else (2.0 if args.quick else 5.0)
+    frames = args.frames if args.frames is not None else (8_000 if args.quick else 24_000)
+    if args.seeds < 1:
+        parser.error(f"--seeds must be >= 1, got {args.seeds}")
+    if not secs > 0:
+        parser.error(f"--seconds must be > 0, got {secs}")
     torch.set_num_threads(1)
 
     from torchrl.envs import GymEnv, SerialEnv
@@ -41,6 +54,20 @@ def main() -> None:
     from torchrl_hybrid.envs import TabularModel, make_toy_text_env
     from torchrl_hybrid.trainers.batched import train_taxi_batched
     from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
+
+    logger = {"progress_bar": False, "backend": "none", "checkpoint": False}
+    if args.eval_episodes is not None:
+        logger.update(eval_episodes=args.eval_episodes, final_eval_episodes=args.eval_episodes)
+
+    def cfg(out_dir, **kw):
+        d = {"total_frames": frames, "out_dir": out_dir, "logger": logger}
+        d.update(kw)
+        return config_from_dict(d)
+
+    try:
+        cfg("unused").validate()
+    except ValueError as err:
+        parser.error(str(err))
 
     rows = []
     # --- environment steps -------------------------------------------------------------
@@ -63,21 +90,19 @@ def main() -> None:
     rows.append(("env: batched table lookups, 256x16 envs (fast path)", timed(raw_steps, secs)[0]))
 
     # --- training -----------------------------------------------------------------------
-    def cfg(**kw):
-        d = {"total_frames": frames, "out_dir": "/tmp/taxi_bench", "logger": {"progress_bar": False, "backend": "none",
-             "checkpoint": False}}
-        d.update(kw)
-        return config_from_dict(d)
-
-    t0 = time.perf_counter()
-    train_taxi(cfg(env={"backend": "gym"}))
-    rows.append(("train: 1 seed, TorchRL trainer, GymEnv backend", frames / (time.perf_counter() - t0)))
-    t0 = time.perf_counter()
-    train_taxi(cfg())
-    rows.append(("train: 1 seed, TorchRL trainer, TabularEnv backend", frames / (time.perf_counter() - t0)))
-    t0 = time.perf_counter()
-    train_taxi_batched([cfg(seed=i) for i in range(args.seeds)], write_outputs=False)
-    rows.append((f"train: {args.seeds} seeds batched (fast path)", args.seeds * frames / (time.perf_counter() - t0)))
+    # each run writes into a folder of its own in a fresh scratch folder, removed at the end (a run
+    # refuses a non-empty out_dir): runs of this script, one after another or side by side, never meet
+    with tempfile.TemporaryDirectory(prefix="taxi_bench_") as root:
+        t0 = time.perf_counter()
+        train_taxi(cfg(f"{root}/gym", env={"backend": "gym"}))
+        rows.append(("train: 1 seed, TorchRL trainer, GymEnv backend", frames / (time.perf_counter() - t0)))
+        t0 = time.perf_counter()
+        train_taxi(cfg(f"{root}/tabular"))
+        rows.append(("train: 1 seed, TorchRL trainer, TabularEnv backend", frames / (time.perf_counter() - t0)))
+        t0 = time.perf_counter()
+        train_taxi_batched([cfg(f"{root}/batched_{i}", seed=i) for i in range(args.seeds)], write_outputs=False)
+        rows.append((f"train: {args.seeds} seeds batched (fast path)",
+                     args.seeds * frames / (time.perf_counter() - t0)))
 
     width = max(len(r[0]) for r in rows)
     print(f"\n{'measurement':<{width}}  {'per second':>14}")

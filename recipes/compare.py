@@ -12,7 +12,9 @@ torchrl_hybrid/experiments/gym_compare.py, e.g. hybrid_dual_clip_apart), ``+comp
 (default [0, 1, 2]) and ``+compare.workers=N`` (default 2) choose the runs;
 ``+compare.launcher=ray`` runs them as Ray tasks (``+compare.address=<cluster>`` joins an
 existing cluster; without it a local one starts). Finished runs are kept; an interrupted
-one resumes from its checkpoint.
+one resumes from its checkpoint. Runs in ``out_dir`` made with other settings are refused,
+each difference named (``overwrite=true`` runs them again with the new settings); a folder
+that holds something other than a comparison is refused.
 """
 from __future__ import annotations
 
@@ -34,7 +36,8 @@ def main(cfg: DictConfig) -> None:
     raw.pop("hydra", None)
     options = raw.pop("compare", None) or {}
     out_dir = raw.pop("out_dir")
-    for k in ("variant", "seed", "resume", "overwrite"):  # set per run by the comparison
+    overwrite = bool(raw.pop("overwrite", False))  # the study's: rerun the runs made with other settings
+    for k in ("variant", "seed", "resume"):  # set per run by the comparison
         raw.pop(k, None)
     in_process = options.get("workers", 2) == 1 and options.get("launcher", "local") == "local"
     configure_process(raw.get("threads") if in_process else None)  # workers=1: the runs train here
@@ -44,7 +47,7 @@ def main(cfg: DictConfig) -> None:
         if unknown:
             raise ValueError(f"unknown compare option(s) {sorted(unknown)}; known: {', '.join(known)}")
         command = " ".join(["python recipes/compare.py", *sys.argv[1:]])
-        run_gym_compare(GymCompareConfig(base=raw, out_dir=out_dir, command=command, **options))
+        run_gym_compare(GymCompareConfig(base=raw, out_dir=out_dir, command=command, overwrite=overwrite, **options))
     except (ValueError, TypeError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

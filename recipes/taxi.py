@@ -28,7 +28,7 @@ def run(cfg: DictConfig) -> None:
     raw = OmegaConf.to_container(cfg, resolve=True)
     raw.pop("hydra", None)
     try:
-        config = config_from_dict(raw)
+        config = config_from_dict(raw).validate()  # every setting checked before out_dir is touched (also engine=batched)
         configure_process(config.threads)
         if config.engine == "batched":
             from torchrl_hybrid.trainers.batched import train_taxi_batched

@@ -1,7 +1,7 @@
 """Reproduce the paper's Taxi results: every configuration x 16 seeds, then the
 figures, curves, parameter table and claims table in results/taxi/.
 
-    python recipes/taxi_sweep.py                          # the full study
+    python recipes/taxi_sweep.py out_dir=results/taxi     # the full study, into the committed folder
     python recipes/taxi_sweep.py groups=[agents] seeds=4  # a subset
 
 Options: recipes/config/taxi_sweep.yaml.

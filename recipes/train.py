@@ -15,11 +15,14 @@ the presets beside them. Atari's expert, demo and evaluation steps have their ow
 """
 from __future__ import annotations
 
+import sys
+
 import hydra
 from omegaconf import DictConfig
 
 import atari  # recipes/atari.py
 import taxi  # recipes/taxi.py
+from torchrl_hybrid.utils.files import out_dir_from_overrides, out_dir_problem
 
 
 @hydra.main(config_path="config", config_name="taxi", version_base=None)
@@ -27,5 +30,16 @@ def main(cfg: DictConfig) -> None:
     (atari if "game" in cfg.env else taxi).run(cfg)  # the env family the config describes
 
 
+def check_out_dir(argv: list[str]) -> None:
+    """An out_dir that is a file (or inside one) is refused here, in one line, before Hydra
+    makes its run folder there (hydra.run.dir is ${out_dir}) and fails with a traceback."""
+    out = out_dir_from_overrides(argv)
+    problem = out_dir_problem(out) if out else None
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        sys.exit(2)
+
+
 if __name__ == "__main__":
+    check_out_dir(sys.argv[1:])
     main()

@@ -98,3 +98,13 @@ def test_headline_states_both_goals_from_each_comparisons_numbers(tmp_path):
     readme.write_text("intro\n<!-- headline:start -->\nold\n<!-- headline:end -->\nrest\n")
     update_readme_block(readme, table)
     assert readme.read_text().startswith("intro\n<!-- headline:start -->\n| env |") and "old" not in readme.read_text()
+    # a PPO base beside: its own row, each arm held against the base it runs on (its rl)
+    summary = json.loads((tmp_path / "env" / "summary.json").read_text())
+    summary["arms"].update({"ppo": {**arm("a2c", [400] * 5, [20_000] * 5), "rl": "ppo"},
+                            "hybrid_dual_ppo": {**arm("hybrid_dual", [410] * 5, [9_000] * 5, "ppo"), "rl": "ppo"}})
+    (tmp_path / "env" / "summary.json").write_text(json.dumps(summary))
+    a2c_row, ppo_row = headline_rows({"X": tmp_path / "env"})
+    assert (a2c_row["env"], ppo_row["env"]) == ("X, A2C", "X, PPO")
+    assert a2c_row["best"]["arm"] == "hybrid_dual_utd4"  # not the better PPO arm
+    assert ppo_row["base_arm"] == "ppo" and ppo_row["best"]["arm"] == ppo_row["paper"]["arm"] == "hybrid_dual_ppo"
+    assert ppo_row["faster"] is True and ppo_row["oracle"] is None and ppo_row["as_good_as_true"] is None

@@ -391,6 +391,37 @@ def test_explorer_slots_give_the_inverse_model_every_action_and_stay_out_of_the_
     assert hybrid.rl_loss.seen.shape == (4, 64) and not hybrid.rl_loss.seen["explore"].any()
 
 
+def test_a_minibatch_of_explorer_transitions_only_gives_a_zero_rl_loss_with_no_gradient():
+    """PPO's minibatches are random rows: one may hold explorer transitions only (ClipPPOLoss
+    failed on the empty rest). Its RL terms are then 0, with their keys, and no gradient."""
+    from tensordict.nn import TensorDictModule
+    from torchrl.modules import ProbabilisticActor, ValueOperator
+    from torchrl.objectives import ClipPPOLoss
+
+    from torchrl_hybrid.objectives import HybridLoss
+
+    torch.manual_seed(0)
+    actor_net = torch.nn.Linear(4, 3)
+    actor = ProbabilisticActor(TensorDictModule(actor_net, ["observation"], ["logits"]), in_keys=["logits"],
+                               distribution_class=torch.distributions.Categorical, return_log_prob=True)
+    critic = ValueOperator(torch.nn.Linear(4, 1), in_keys=["observation"])
+    ppo = ClipPPOLoss(actor, critic)
+    n = 8
+    td = TensorDict({"observation": torch.randn(n, 4), "action": torch.randint(0, 3, (n,)),
+                     "action_log_prob": torch.full((n,), -1.1), "advantage": torch.randn(n, 1),
+                     "value_target": torch.randn(n, 1), "explore": torch.ones(n, 1, dtype=torch.bool)}, [n])
+    parts = HybridLoss(ppo, None, None).forward_parts(TensorDict({"agent": td, "expert": TensorDict({}, [0])}, []))
+    rl = parts["rl"]
+    assert {"loss_objective", "loss_critic", "loss_entropy"} <= set(rl.keys())
+    total = sum(v for k, v in rl.items() if k.startswith("loss_"))
+    assert total.item() == 0.0 and total.requires_grad
+    total.backward()
+    assert all(p.grad is None or not p.grad.any() for p in ppo.parameters())
+    td["explore"][:2] = False  # two policy rows: the loss is theirs, not zero
+    rl = HybridLoss(ppo, None, None).forward_parts(TensorDict({"agent": td, "expert": TensorDict({}, [0])}, []))["rl"]
+    assert rl["loss_critic"].item() != 0.0
+
+
 class PolicyEntropyLossStub(torch.nn.Module):
     """Records the batch the RL part of a HybridLoss is given."""
 

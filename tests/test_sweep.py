@@ -79,6 +79,12 @@ def test_an_interrupted_sweep_runs_only_the_missing_configurations(tmp_path, cap
                                     {"variant": "a2c"}), {"seed": s, "out_dir": f"{tmp_path}/runs/a2c/seed_{s}"})
                 for s in range(2)]
     marker = [dict(r, final_return=123.0) for r in first["a2c"]]
+    # the same sweep again: analysed, nothing trained
+    capsys.readouterr()
+    finals = lambda res: {k: [r["final_return"] for r in v] for k, v in res.items()}  # noqa: E731
+    assert finals(run_sweep(cfg, show_progress=False)) == finals(first)
+    assert "holds this sweep already" in capsys.readouterr().out
+    (tmp_path / "runs.json").unlink()  # an interrupted sweep has none yet
     (tmp_path / "configs").mkdir()
     (tmp_path / "configs" / "a2c.json").write_text(json.dumps({"settings": settings, "summaries": marker}))
     capsys.readouterr()

@@ -186,9 +186,12 @@ def save_demos(demos: TensorDictBase, path: str | Path, metadata: dict | None = 
 
 
 def load_demos(
-    path: str | Path, *, obs_shape: Sequence[int] | None = None, obs_dtype: torch.dtype | None = None
+    path: str | Path, *, obs_shape: Sequence[int] | None = None, obs_dtype: torch.dtype | None = None,
+    require_metadata: str | None = None,
 ) -> tuple[TensorDictBase, dict]:
-    """Loads a dataset written by :func:`save_demos` and validates it."""
+    """Loads a dataset written by :func:`save_demos` and validates it. A missing
+    ``metadata.json`` reads as ``{}``, or, with ``require_metadata`` (how to record demos
+    that have it), is refused with ``FileNotFoundError``."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"demo dataset {str(path)!r} does not exist; generate it first or fix the path.")
@@ -200,6 +203,9 @@ def load_demos(
     except Exception as err:  # a folder that is not a saved TensorDict
         raise ValueError(f"{str(path)!r} is not a demo dataset written by save_demos: {err}") from err
     meta_file = path / "metadata.json"
+    if require_metadata is not None and not meta_file.exists():
+        raise FileNotFoundError(f"{path}: no metadata.json (looked for {meta_file}), which says what the demos were "
+                                f"recorded on; these are not demos written by the recording recipe: {require_metadata}")
     metadata = read_json(meta_file, "demo metadata") if meta_file.exists() else {}
     return validate_demos(demos, obs_shape=obs_shape, obs_dtype=obs_dtype, source=str(path)), metadata
 

@@ -22,7 +22,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.experiments.study import changed_runs, open_study, refuse_changed
 from torchrl_hybrid.utils.config import flatten_dict, merge_dicts
+from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
@@ -77,7 +79,8 @@ class CompareConfig:
     variants: Sequence[str] = ("a2c", "hybrid_dual")
     seeds: Sequence[int] = (0, 1)
     total_frames: int = 2_000_000
-    out_dir: str = "results/atari/compare"
+    # a fresh folder per comparison unless named (results/... is regenerated only when asked for)
+    out_dir: str = field(default_factory=lambda: time.strftime("outputs/atari_compare/%Y-%m-%d_%H-%M-%S"))
     demos: dict = field(default_factory=dict)
     workers: int = 2
     base: dict = field(default_factory=dict)
@@ -88,6 +91,9 @@ class CompareConfig:
     max_retries: int = 2        # ray: how often a run whose worker died is started again
     arms: dict = field(default_factory=dict)  # more named arms, beside (or replacing) ROBUST_ARMS
     analyse_only: bool = False  # start no run: draw and tabulate the finished ones (demos not needed)
+    # runs of out_dir made with other settings than asked now are refused (naming each difference);
+    # overwrite=true runs them again with the new settings
+    overwrite: bool = False
 
     @property
     def all_arms(self) -> dict[str, dict]:
@@ -176,6 +182,18 @@ def _run_dir(cfg: CompareConfig, game: str, variant: str, seed: int) -> Path:
     return Path(cfg.out_dir) / game / f"{variant}_s{seed}"
 
 
+#: the settings on which a comparison's run must agree with the run of that name already in
+#: its folder: those a checkpoint is resumed on, plus the length and the learning curve's points
+STUDY_KEYS = ("total_frames", "logger.log_every_frames", "logger.accuracy_pairs", "logger.eval_episodes")
+
+
+def _looks_like_compare(folder: Path) -> bool:
+    """A comparison folder written before ``study.json``: ``<game>/<arm>_s<seed>`` run folders."""
+    return (folder / "summary.json").exists() or any(
+        p.is_dir() and p.name.rpartition("_s")[2].isdigit() and (p / "config.json").exists()
+        for g in folder.iterdir() if g.is_dir() for p in g.iterdir())
+
+
 def _one(job: tuple[dict, str]) -> tuple[str, float]:
     """One run. Whether it resumes is decided when it starts: a run interrupted mid-way
     (or whose worker died and was restarted) goes on from its last checkpoint; one cut
@@ -185,7 +203,7 @@ def _one(job: tuple[dict, str]) -> tuple[str, float]:
 
     d, name = job
     configure_worker(d.get("threads"))
-    ckpt = (Path(d["out_dir"]) / "checkpoint").exists()
+    ckpt = not d.get("overwrite") and (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
     train_atari(atari_config(merge_dicts(d, {"resume": ckpt, "overwrite": not ckpt})))
     return name, time.perf_counter() - t0
@@ -264,7 +282,9 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
     """Runs the missing runs (``workers`` at a time, torch and ALE threads split
     between them), then :func:`analyse_compare`. With ``analyse_only`` it starts
     nothing: it names the runs that are not finished and analyses the others."""
-    from torchrl_hybrid.trainers.atari import atari_config
+    import dataclasses
+
+    from torchrl_hybrid.trainers.atari import _RESUME_IGNORE, _RESUME_KEYS, AtariConfig, atari_config
 
     cfg.validate()
     if cfg.analyse_only:
@@ -278,14 +298,12 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                                     f"x seeds {list(cfg.seeds)} in {cfg.out_dir!r} (nor in the baselines)")
         return result
     threads = cfg.default_threads
-    jobs = []
+    planned = []
     for game in cfg.games:
         for name in cfg.variants:
             variant, overrides = cfg.arm(name)
             for seed in cfg.seeds:
                 out = _run_dir(cfg, game, name, seed)
-                if (out / "summary.json").exists():
-                    continue
                 d = merge_dicts({"threads": threads, "env": {"num_threads": threads},
                             "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"}}, cfg.base)
                 d = merge_dicts(d, overrides)
@@ -293,30 +311,39 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                                "out_dir": str(out), "env": {"game": game},
                                "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
                 try:  # a misspelt override fails here, before any run has started
-                    atari_config(d).validate()
+                    full = atari_config(d)
+                    full.validate()
                 except (TypeError, ValueError) as err:
                     raise ValueError(f"{game}/{name}: {err}") from None
-                jobs.append((d, f"{game}/{name}_s{seed}"))
-    print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
-    t0 = time.perf_counter()
-    # one run alone shows its own bar; side by side (or on a cluster whose workers write
-    # elsewhere) they don't, and this bar follows their metrics.csv here
-    bar_off = not jobs or (cfg.workers == 1 and cfg.launcher == "local") or cfg.address is not None
-    with SweepProgress([Path(d["out_dir"]) for d, _ in jobs], cfg.total_frames, disable=bar_off) as progress:
-        # a run takes `threads` CPUs (torch + ALE threads) of a Ray node
-        for name, secs in run_jobs(_one, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
-                                   cpus_per_job=threads if cfg.launcher == "ray" else 1,
-                                   max_retries=cfg.max_retries, fresh_process=True):
-            progress.write(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)")
-    return analyse_compare(cfg)
+                planned.append((f"{game}/{name}_s{seed}", out, d, dataclasses.asdict(full)))
+    with open_study(cfg.out_dir, "atari_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
+        changed = changed_runs([(n, out, full) for n, out, _, full in planned], _RESUME_KEYS + STUDY_KEYS,
+                               ignore=_RESUME_IGNORE, defaults=dataclasses.asdict(AtariConfig()))
+        if not cfg.overwrite:
+            refuse_changed(changed, cfg.out_dir)
+        jobs = [(merge_dicts(d, {"overwrite": True}) if n in changed else d, n)
+                for n, out, d, _ in planned if n in changed or not (out / "summary.json").exists()]
+        print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else "")
+              + (f" ({len(changed)} again with the new settings)" if changed else ""), flush=True)
+        t0 = time.perf_counter()
+        # one run alone shows its own bar; side by side (or on a cluster whose workers write
+        # elsewhere) they don't, and this bar follows their metrics.csv here
+        bar_off = not jobs or (cfg.workers == 1 and cfg.launcher == "local") or cfg.address is not None
+        with SweepProgress([Path(d["out_dir"]) for d, _ in jobs], cfg.total_frames, disable=bar_off) as progress:
+            # a run takes `threads` CPUs (torch + ALE threads) of a Ray node
+            for name, secs in run_jobs(_one, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
+                                       cpus_per_job=threads if cfg.launcher == "ray" else 1,
+                                       max_retries=cfg.max_retries, fresh_process=True):
+                progress.write(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)")
+        return analyse_compare(cfg)
 
 
 def _load_run(d: Path, seed: int) -> dict:
     with open(d / "metrics.csv") as f:
         rows = [upgrade_accuracy_keys({k: float(v) if v not in ("", None) else math.nan for k, v in r.items()})
                 for r in csv.DictReader(f)]
-    summary = upgrade_accuracy_keys(json.loads((d / "summary.json").read_text()))
-    config = json.loads((d / "config.json").read_text()) if (d / "config.json").exists() else {}
+    summary = upgrade_accuracy_keys(read_json(d / "summary.json", "run summary"))
+    config = read_json(d / "config.json", "run config") if (d / "config.json").exists() else {}
     return {"seed": seed, "rows": rows, "summary": summary, "config": config}
 
 
@@ -628,7 +655,7 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
     # games) updates their entries and keeps the rest
     path = root / "summary.json"
     try:
-        kept = json.loads(path.read_text()) if path.exists() else {}
+        kept = read_json(path, "comparison summary") if path.exists() else {}
     except json.JSONDecodeError:  # derived data: rewritten from the runs' own files
         warnings.warn(f"{path} is not valid JSON (truncated?); rewriting it with this comparison's games only")
         kept = {}

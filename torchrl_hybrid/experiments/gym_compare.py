@@ -16,7 +16,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.experiments.study import changed_runs, open_study, refuse_changed
 from torchrl_hybrid.utils.config import merge_dicts
+from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
@@ -31,6 +33,10 @@ GYM_ARMS: dict[str, dict] = {
     "ppo": {"variant": "a2c", "rl": "ppo"},
     "hybrid_dual_ppo": {"variant": "hybrid_dual", "base": "ppo", "rl": "ppo"},
     "hybrid_true_ppo": {"variant": "hybrid_true", "base": "ppo", "rl": "ppo"},
+    # prior-corrected labels on the PPO base (PPO's epochs x minibatches already give BC and the
+    # inverse model 16 updates per collected batch, so no extra updates)
+    "hybrid_dual_prior_ppo": {"variant": "hybrid_dual", "base": "hybrid_dual_ppo", "rl": "ppo",
+                              "loss": {"bc_prior_floor": 0.05}},
     # the objective's balance (issue 32): the BC gradient clipped apart from the RL gradient
     "hybrid_dual_clip_apart": {"variant": "hybrid_dual", "base": "hybrid_dual", "optim": {"clip": "per_term"}},
     "hybrid_true_clip_apart": {"variant": "hybrid_true", "base": "hybrid_true", "optim": {"clip": "per_term"}},
@@ -72,6 +78,9 @@ class GymCompareConfig:
     address: str | None = None  # ray: the cluster to join; None starts a local one
     max_retries: int = 2        # ray: how often a run whose worker died is started again
     command: str = ""  # the command line that made this comparison, for the README
+    # runs of out_dir made with other settings than asked now are refused (naming each difference);
+    # overwrite=true runs them again with the new settings
+    overwrite: bool = False
 
     @property
     def all_arms(self) -> dict[str, dict]:
@@ -130,40 +139,70 @@ def reach_threshold(random_return: float, expert_return: float, share: float = R
     return random_return + share * (expert_return - random_return)
 
 
+#: the settings on which a comparison's run must agree with the run of that name already in
+#: its folder: those a checkpoint is resumed on, plus the length and the learning curve's points
+STUDY_KEYS = ("total_frames", "logger.log_every_frames", "logger.eval_episodes", "logger.final_eval_episodes")
+
+
 def run_one(d: dict) -> tuple[str, float]:
     """One run of the comparison. Whether it resumes is decided here, when it starts: a
     run restarted after its worker died goes on from its last checkpoint (or starts
-    again, replacing its partial files, when it died before the first one)."""
+    again, replacing its partial files, when it died before the first one). A job with
+    ``overwrite`` starts again whatever the folder holds."""
     from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
     from torchrl_hybrid.utils.process import configure_worker
 
     configure_worker(d.get("threads"))
-    ckpt = (Path(d["out_dir"]) / "checkpoint").exists()
+    ckpt = not d.get("overwrite") and (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
     train_taxi(config_from_dict(merge_dicts(d, {"resume": ckpt, "overwrite": not ckpt})))
     return d["out_dir"], time.perf_counter() - t0
 
 
+def _looks_like_compare(folder: Path) -> bool:
+    """A comparison folder written before ``study.json``: run folders ``<arm>_s<seed>``."""
+    return any(p.is_dir() and p.name.rpartition("_s")[2].isdigit() and (p / "config.json").exists()
+               for p in folder.iterdir())
+
+
 def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
     """Runs the missing runs (``workers`` at a time, on ``cfg.launcher``), then analyses
-    them. ``run_fn`` runs one job (:func:`run_one`; the fault tests wrap it)."""
+    them. ``run_fn`` runs one job (:func:`run_one`; the fault tests wrap it). Runs already
+    in ``out_dir`` with other settings are refused before anything starts (or, with
+    ``cfg.overwrite``, run again)."""
+    import dataclasses
+
+    from torchrl_hybrid.trainers.taxi import _RESUME_KEYS, TaxiConfig, config_from_dict
+
     cfg.validate()
-    jobs = []
+    # a progress bar only where one run trains in this terminal, and only if the settings ask for it
+    bar = cfg.base.get("logger", {}).get("progress_bar", True) and cfg.workers == 1 and cfg.launcher == "local"
+    planned = []
     for variant in cfg.variants:
         for seed in cfg.seeds:
             out = Path(cfg.out_dir) / f"{variant}_s{seed}"
-            if (out / "summary.json").exists():
-                continue
-            # a progress bar only where one run trains in this terminal, and only if the settings ask for it
-            bar = cfg.base.get("logger", {}).get("progress_bar", True) and cfg.workers == 1 and cfg.launcher == "local"
-            jobs.append(merge_dicts(merge_dicts(cfg.base, cfg.run_settings(variant)),
-                                    {"seed": seed, "out_dir": str(out), "logger": {"progress_bar": bar}}))
-    print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else ""), flush=True)
-    t0 = time.perf_counter()
-    for out, secs in run_jobs(run_fn, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
-                              max_retries=cfg.max_retries):
-        print(f"  {out}: {secs:.0f} s ({time.perf_counter() - t0:.0f} s since start)", flush=True)
-    return analyse_gym_compare(cfg, wall_time_s=time.perf_counter() - t0 if jobs else None)
+            d = merge_dicts(merge_dicts(cfg.base, cfg.run_settings(variant)),
+                            {"seed": seed, "out_dir": str(out), "logger": {"progress_bar": bar}})
+            try:  # a misspelt or out-of-range setting fails here, before any run has started
+                full = config_from_dict(d)
+                full.validate()
+            except (TypeError, ValueError) as err:
+                raise ValueError(f"{variant}: {err}") from None
+            planned.append((f"{variant}_s{seed}", out, d, dataclasses.asdict(full)))
+    with open_study(cfg.out_dir, "gym_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
+        changed = changed_runs([(name, out, full) for name, out, _, full in planned], _RESUME_KEYS + STUDY_KEYS,
+                               ignore=("logger.progress_bar",), defaults=dataclasses.asdict(TaxiConfig()))
+        if not cfg.overwrite:
+            refuse_changed(changed, cfg.out_dir)
+        jobs = [merge_dicts(d, {"overwrite": True}) if name in changed else d
+                for name, out, d, _ in planned if name in changed or not (out / "summary.json").exists()]
+        print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else "")
+              + (f" ({len(changed)} again with the new settings)" if changed else ""), flush=True)
+        t0 = time.perf_counter()
+        for out, secs in run_jobs(run_fn, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
+                                  max_retries=cfg.max_retries):
+            print(f"  {out}: {secs:.0f} s ({time.perf_counter() - t0:.0f} s since start)", flush=True)
+        return analyse_gym_compare(cfg, wall_time_s=time.perf_counter() - t0 if jobs else None)
 
 
 def _load(cfg: GymCompareConfig) -> dict[str, list[dict]]:
@@ -177,7 +216,7 @@ def _load(cfg: GymCompareConfig) -> dict[str, list[dict]]:
                 rows = [{k: float(v) if v not in ("", None) else math.nan for k, v in r.items()}
                         for r in csv.DictReader(f)]
             runs.setdefault(variant, []).append(
-                {"seed": seed, "rows": rows, "summary": json.loads((d / "summary.json").read_text())})
+                {"seed": seed, "rows": rows, "summary": read_json(d / "summary.json", "run summary")})
     return runs
 
 
@@ -298,6 +337,7 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
            "expert_return": optimal, "random_return": random_return, "threshold": threshold, "reach_share": REACH,
            "reference": ref,
            "arms": {v: {"variant": cfg.run_settings(v)["variant"], "base": cfg.all_arms.get(v, {}).get("base"),
+                        "rl": cfg.run_settings(v).get("rl", cfg.base.get("rl", "a2c")),
                         "seeds": st["seeds"], "auc": st["auc"].tolist(), "final": st["final"].tolist(),
                         "frames_to_reach": [None if not np.isfinite(x) else float(x) for x in st["reach"]],
                         "budget": st["budget"],

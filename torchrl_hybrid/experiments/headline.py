@@ -46,52 +46,66 @@ def _ci(x) -> str:
     return f"{m:.1f} [{lo:.1f}, {hi:.1f}]"
 
 
-def headline_rows(studies: dict[str, str | Path], base: str = "a2c", paper: str = "hybrid_dual",
-                  oracle: str = "hybrid_true") -> list[dict[str, Any]]:
-    """One row per env: ``studies`` maps an env's label to its comparison's out_dir."""
+#: per RL base: the arm that is the base alone and the paper's hybrid on it (GYM_ARMS' names)
+BASES = {"a2c": ("a2c", "hybrid_dual"), "ppo": ("ppo", "hybrid_dual_ppo")}
+
+
+def headline_rows(studies: dict[str, str | Path], oracle: str = "hybrid_true") -> list[dict[str, Any]]:
+    """One row per env and RL base run there (``a2c``, ``ppo``): ``studies`` maps an env's label
+    to its comparison's out_dir. Each row holds the arms on that base only (their ``rl``)."""
     rows = []
     for label, out_dir in studies.items():
         summary = read_json(Path(out_dir) / "summary.json", "comparison summary (recipes/compare.py rewrites it)")
-        arms = summary["arms"]
-        if base not in arms:
-            raise ValueError(f"{out_dir}: no {base!r} runs to compare against")
-        b = arms[base]
-        inferred = {k: a for k, a in arms.items() if a["variant"] in ("hybrid_dual", "hybrid_mlp")}
-        best_name = max(inferred, key=lambda k: np.mean(inferred[k]["auc"])) if inferred else None
-        row: dict[str, Any] = {"env": label, "out_dir": str(out_dir), "expert": summary["expert_return"],
-                               "base": _ci(b["auc"]), "base_reached": f"{_reached(b)}/{len(b['auc'])}",
-                               "base_frames": float(_frames(b).mean())}
-        # the oracle to hold the best arm against: its counterpart with true labels and the same settings
-        # (hybrid_dual_X -> hybrid_true_X), else the strongest oracle arm run (the harder bar)
-        oracles = {k: a for k, a in arms.items() if a["variant"] == oracle}
-        twin = best_name.replace(paper, oracle, 1) if best_name else None
-        oracle_name = twin if twin in oracles else (max(oracles, key=lambda k: np.mean(oracles[k]["auc"]))
-                                                     if oracles else oracle)
-        for key, name in (("paper", paper), ("best", best_name), ("oracle", oracle_name)):
-            a = arms.get(name)
-            if a is None:
-                row[key] = None
-                continue
-            d, lo, hi = mean_diff_ci(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else (np.nan,) * 3
-            p = permutation_p(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else np.nan
-            row[key] = {"arm": name, "auc": _ci(a["auc"]), "diff": f"{d:+.1f} [{lo:+.1f}, {hi:+.1f}], p = {p:.2f}",
-                        "reached": f"{_reached(a)}/{len(a['auc'])}", "frames": float(_frames(a).mean()),
-                        "auc_mean": float(np.mean(a["auc"])), "auc_values": a["auc"]}
-        best, orc = row["best"], row["oracle"]
-        if best is not None:
-            never = _reached(b) == 0 and _reached(arms[best_name]) == len(arms[best_name]["auc"])
-            row["faster"] = bool(never or best["frames"] <= 0.5 * row["base_frames"])
-            if orc is not None and len(orc["auc_values"]) >= 3:
-                _, lo, _ = mean_ci(orc["auc_values"])
-                row["as_good_as_true"] = bool(best["auc_mean"] >= lo)
-            else:
-                row["as_good_as_true"] = None
-        rows.append(row)
+        all_arms = summary["arms"]
+        bases = [rl for rl, (name, _) in BASES.items() if name in all_arms]
+        if not bases:
+            raise ValueError(f"{out_dir}: no RL-base runs ({' or '.join(n for n, _ in BASES.values())}) to compare "
+                             "against")
+        for rl in bases:
+            base, paper = BASES[rl]
+            arms = {k: a for k, a in all_arms.items() if a.get("rl", "a2c") == rl}
+            rows.append(_row(f"{label}" if len(bases) == 1 else f"{label}, {rl.upper()}", out_dir, summary, arms,
+                             base, paper, oracle, rl))
     return rows
 
 
+def _row(label: str, out_dir, summary: dict, arms: dict, base: str, paper: str, oracle: str, rl: str) -> dict:
+    b = arms[base]
+    inferred = {k: a for k, a in arms.items() if a["variant"] in ("hybrid_dual", "hybrid_mlp")}
+    best_name = max(inferred, key=lambda k: np.mean(inferred[k]["auc"])) if inferred else None
+    row: dict[str, Any] = {"env": label, "rl": rl, "out_dir": str(out_dir), "expert": summary["expert_return"],
+                           "base_arm": base, "base": _ci(b["auc"]), "base_reached": f"{_reached(b)}/{len(b['auc'])}",
+                           "base_frames": float(_frames(b).mean())}
+    # the oracle to hold the best arm against: its counterpart with true labels and the same settings
+    # (hybrid_dual_X -> hybrid_true_X), else the strongest oracle arm run (the harder bar)
+    oracles = {k: a for k, a in arms.items() if a["variant"] == oracle}
+    twin = best_name.replace("hybrid_dual", oracle, 1) if best_name else None
+    oracle_name = twin if twin in oracles else (max(oracles, key=lambda k: np.mean(oracles[k]["auc"]))
+                                                if oracles else oracle)
+    for key, name in (("paper", paper), ("best", best_name), ("oracle", oracle_name)):
+        a = arms.get(name)
+        if a is None:
+            row[key] = None
+            continue
+        d, lo, hi = mean_diff_ci(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else (np.nan,) * 3
+        p = permutation_p(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else np.nan
+        row[key] = {"arm": name, "auc": _ci(a["auc"]), "diff": f"{d:+.1f} [{lo:+.1f}, {hi:+.1f}], p = {p:.2f}",
+                    "reached": f"{_reached(a)}/{len(a['auc'])}", "frames": float(_frames(a).mean()),
+                    "auc_mean": float(np.mean(a["auc"])), "auc_values": a["auc"]}
+    best, orc = row["best"], row["oracle"]
+    if best is not None:
+        never = _reached(b) == 0 and _reached(arms[best_name]) == len(arms[best_name]["auc"])
+        row["faster"] = bool(never or best["frames"] <= 0.5 * row["base_frames"])
+        if orc is not None and len(orc["auc_values"]) >= 3:
+            _, lo, _ = mean_ci(orc["auc_values"])
+            row["as_good_as_true"] = bool(best["auc_mean"] >= lo)
+        else:
+            row["as_good_as_true"] = None
+    return row
+
+
 def headline_markdown(rows: list[dict[str, Any]]) -> str:
-    lines = ["| env | RL base (a2c) AUC | paper's hybrid AUC (− base) | best inferred-label arm: AUC (− base) | "
+    lines = ["| env | RL base: AUC | paper's hybrid AUC (− base) | best inferred-label arm: AUC (− base) | "
              "its oracle: AUC | frames to 90 %: base / best | faster? | labels as good as true? |",
              "|---|---|---|---|---|---|---|---|"]
 
@@ -105,7 +119,7 @@ def headline_markdown(rows: list[dict[str, Any]]) -> str:
         frames = (f"{r['base_frames'] / 1e3:.0f}k ({r['base_reached']}) / {best['frames'] / 1e3:.0f}k "
                   f"({best['reached']})" if best else "-")
         yes = {True: "**yes**", False: "no", None: "-"}
-        lines.append(f"| [{r['env']}]({r['out_dir']}/README.md) | {r['base']} | {cell(r['paper'])} | "
+        lines.append(f"| [{r['env']}]({r['out_dir']}/README.md) | `{r['base_arm']}`: {r['base']} | {cell(r['paper'])} | "
                      f"{'`' + best['arm'] + '`: ' + cell(best) if best else '-'} | "
                      f"{'`' + r['oracle']['arm'] + '`: ' + r['oracle']['auc'] if r['oracle'] else 'not run'} | "
                      f"{frames} | {yes[r.get('faster')]} | {yes[r.get('as_good_as_true')]} |")

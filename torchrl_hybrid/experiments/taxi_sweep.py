@@ -18,7 +18,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from torchrl_hybrid.experiments.study import open_study, settings_diff
 from torchrl_hybrid.utils.config import merge_dicts
+from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_diff_ci
@@ -51,12 +53,22 @@ class SweepConfig:
     groups: Sequence[str] = ("agents", "ranks", "noise")
     seeds: int = 16
     total_frames: int = 80_000
-    out_dir: str = "results/taxi"
+    # a fresh folder per sweep unless named (results/taxi is regenerated only when asked for)
+    out_dir: str = field(default_factory=lambda: time.strftime("outputs/taxi_sweep/%Y-%m-%d_%H-%M-%S"))
     workers: int = 2
     base: dict = field(default_factory=dict)
     launcher: str = "local"     # local (worker processes) | ray (one Ray task per configuration)
     address: str | None = None  # ray: the cluster to join; None starts a local one
     max_retries: int = 2        # ray: how often a configuration whose worker died is started again
+    # a folder holding a sweep with other settings is refused (naming each difference);
+    # overwrite=true runs this one there instead
+    overwrite: bool = False
+
+    @property
+    def settings(self) -> dict:
+        """What makes two sweeps the same sweep (runs.json's ``meta`` holds them)."""
+        return {"groups": list(self.groups), "seeds": self.seeds, "total_frames": self.total_frames,
+                "base": self.base}
 
 
 def configurations(groups: Sequence[str]) -> dict[str, dict]:
@@ -108,9 +120,8 @@ def _run_batch(args) -> tuple[str, list[dict]]:
 def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[dict]]:
     """Trains every configuration with ``cfg.seeds`` seeds (one batched job per
     configuration, ``cfg.workers`` jobs at a time), writes ``runs.json`` and the
-    analysis into ``cfg.out_dir``, and returns ``{name: [summary per seed]}``."""
-    from tqdm import tqdm
-
+    analysis into ``cfg.out_dir``, and returns ``{name: [summary per seed]}``. A folder
+    holding this sweep already is analysed again; one holding another is refused."""
     if cfg.seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {cfg.seeds}")
     if cfg.workers < 1:
@@ -126,19 +137,49 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
         jobs.append((name, dicts))
     # the slowest (dual-model) jobs first so that the two workers finish together
     jobs.sort(key=lambda j: ("dual" not in j[0], j[0]))
+    with open_study(cfg.out_dir, "taxi_sweep", looks_like=_looks_like_sweep, overwrite=cfg.overwrite):
+        return _run_sweep(cfg, jobs, show_progress)
+
+
+def _looks_like_sweep(folder: Path) -> bool:
+    """A sweep folder written before ``study.json``: its ``runs.json`` or ``configs/``."""
+    return (folder / "runs.json").exists() or (folder / "configs").is_dir()
+
+
+def _run_sweep(cfg: SweepConfig, jobs: list, show_progress: bool) -> dict[str, list[dict]]:
+    from tqdm import tqdm
+
     out = Path(cfg.out_dir)
+    if (out / "runs.json").exists():  # a finished sweep: the same one is analysed again, another refused
+        results, meta = load_sweep(out)
+        diff = settings_diff({k: meta.get(k) for k in cfg.settings}, cfg.settings, cfg.settings)
+        if not diff:
+            print(f"{out / 'runs.json'} holds this sweep already; analysing it again", flush=True)
+            analyse(out, results, meta)
+            return results
+        if not cfg.overwrite:
+            raise ValueError(f"{out} holds a finished sweep with other settings ({'; '.join(diff)}; see "
+                             f"{out / 'runs.json'}); choose another out_dir, or pass overwrite=true to replace it")
     # each finished configuration is kept in out/configs/<name>.json with the settings it ran
     # with, so an interrupted sweep (or one whose worker died) goes on with the missing ones
     done_dir = out / "configs"
     done_dir.mkdir(parents=True, exist_ok=True)
     results: dict[str, list[dict]] = {}
+    changed = []
     for name, dicts in list(jobs):
         f = done_dir / f"{name}.json"
         if f.exists():
-            saved = json.loads(f.read_text())
+            saved = read_json(f, "finished configuration of the sweep")
             if saved["settings"] == dicts:
                 results[name] = saved["summaries"]
                 jobs.remove((name, dicts))
+            else:
+                changed.append(name)
+    if changed and not cfg.overwrite:
+        raise ValueError(f"{len(changed)} configuration(s) in {done_dir} ran with other settings than asked now "
+                         f"({', '.join(changed[:4])}{' ...' if len(changed) > 4 else ''}); run the same command "
+                         "as that sweep to go on with it, choose another out_dir, or pass overwrite=true to run "
+                         "them again")
     if results:
         print(f"{len(results)} configuration(s) already done in {done_dir}; {len(jobs)} to run", flush=True)
 
@@ -190,7 +231,7 @@ def load_sweep(path: str | Path) -> tuple[dict[str, list[dict]], dict]:
     """``(runs, meta)`` of a sweep's ``runs.json`` (a file or its folder); files written
     before the accuracy columns were named apart are read with the new names."""
     path = Path(path)
-    data = json.loads((path / "runs.json" if path.is_dir() else path).read_text())
+    data = read_json(path / "runs.json" if path.is_dir() else path, "sweep file")
     for rs in data["runs"].values():
         for r in rs:
             upgrade_accuracy_keys(r)

@@ -92,9 +92,21 @@ class HybridLoss(LossModule):
                     "ExpertBatchHook builds it (or pass TensorDict({'agent': ..., 'expert': ...}, []))."
                 )
             if name == "rl":
-                sub = self._policy_slots(sub)
+                policy = self._policy_slots(sub)
+                if policy.batch_size.numel() == 0:  # a minibatch of explorer transitions only (PPO): nothing to learn from
+                    parts[name] = self._zero_loss(loss(sub))
+                    continue
+                sub = policy
             parts[name] = loss(sub)
         return parts
+
+    @staticmethod
+    def _zero_loss(out: TensorDictBase) -> TensorDictBase:
+        """The RL loss's entries with every ``loss_*`` term zero but still in the graph (computed
+        on off-policy rows, then multiplied by 0): the keys, the sum and each term's backward stay
+        as in any other step, and no gradient comes from it."""
+        return out.named_apply(lambda k, v: v.nan_to_num(0.0, 0.0, 0.0) * 0.0 if k.startswith("loss_") else v,
+                               filter_empty=False)
 
     def _policy_slots(self, sub: TensorDictBase) -> TensorDictBase:
         """The agent's transitions without the explorer slots' (``explore``, written by

@@ -21,7 +21,7 @@ from torchrl.envs import RewardSum, TransformedEnv
 
 from torchrl_hybrid.collectors import WORKER_KINDS, AtariCollector, make_worker_collector
 from torchrl_hybrid.collectors.workers import worker_devices
-from torchrl_hybrid.data import EXPERT_ACTION_KEY, CurriculumSampler, load_demos
+from torchrl_hybrid.data import EXPERT_ACTION_KEY, CurriculumSampler, check_trajectories, load_demos
 from torchrl_hybrid.envs.atari import AtariEnv
 from torchrl_hybrid.experts import load_expert, record_demos
 from torchrl_hybrid.modules import AtariEncoder, make_atari_actor_critic
@@ -31,7 +31,7 @@ from torchrl_hybrid.trainers.hooks import NextStateValueHook, RandomStateHook
 from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.run import DemoConfig, LoggerConfig, LossConfig, OptimConfig  # what Atari's settings extend
 from torchrl_hybrid.trainers.run import EnvFamily, Networks, Run, RunConfig, Setup, build_run, finite, train_run
-from torchrl_hybrid.utils.config import dataclass_from_dict
+from torchrl_hybrid.utils.config import MAX_FRAMES, MAX_THREADS, check_float, check_int, check_types, dataclass_from_dict
 from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT
 
@@ -40,6 +40,7 @@ __all__ = ["AtariConfig", "AtariFamily", "AtariRun", "atari_config", "build_atar
            "record_demos", "load_expert"]
 
 ATARI_VARIANTS = ("hybrid_dual", "hybrid_mlp", "bc_dual", "a2c", "hybrid_true")  # hybrid_true: the oracle diagnostic
+INITS = ("orthogonal", "default")  # AtariConfig.init
 
 
 # The settings below are the Hydra schema of recipes/config/atari.yaml (torchrl_hybrid/configs.py):
@@ -54,6 +55,13 @@ class AtariEnvConfig:
     num_threads: int = 2  # ALE worker threads
     noop_max: int = 30   # standard: up to 30 no-ops at episode start
     max_episode_frames: int = 108_000
+
+    def validate(self) -> None:
+        check_types(self, "env.")
+        check_int("env.num_envs", self.num_envs, 1)
+        check_int("env.num_threads", self.num_threads, 1, MAX_THREADS)
+        check_int("env.noop_max", self.noop_max, 0)
+        check_int("env.max_episode_frames", self.max_episode_frames, 1, MAX_FRAMES)
 
 
 @dataclass
@@ -79,6 +87,17 @@ class AtariCollectorConfig:
     # learner, which then does not encode the batch's observations again (same weights, same
     # frames: equal loss and gradients, tested)
     keep_features: bool = True
+
+    def validate(self) -> None:
+        check_types(self, "collector.")
+        if self.backend not in ("atari", "torchrl", *WORKER_KINDS):
+            raise ValueError(f"collector.backend={self.backend!r}: choose atari, torchrl, " + " or ".join(WORKER_KINDS))
+        check_int("collector.workers", self.workers, 1)
+        check_float("collector.worker_gpus", self.worker_gpus, 0.0, cap=1024)
+        worker_devices(self.backend, self.worker_gpus)  # worker_gpus: Ray only
+        check_int("collector.env_groups", self.env_groups, 1)
+        if self.env_groups > 1 and self.backend != "atari":
+            raise ValueError("collector.env_groups > 1 needs collector.backend=atari")
 
 
 @dataclass
@@ -114,8 +133,13 @@ class AtariOptimConfig(OptimConfig):
 @dataclass
 class AtariLoggerConfig(LoggerConfig):
     log_every_frames: int = 40_000  # game frames between learning-curve rows
-    accuracy_pairs: int = 512  # demo pairs of the inverse model's accuracy column (idm_accuracy_expert)
+    accuracy_pairs: int = 512  # demo pairs of the inverse model's accuracy column (idm_accuracy_expert); 0: off
     eval_episodes: int = 0  # whole episodes the final policy plays (sampling); stored in summary.json and model.pt
+
+    def validate(self) -> None:
+        super().validate()
+        check_int("logger.accuracy_pairs", self.accuracy_pairs, 0)
+        check_int("logger.eval_episodes", self.eval_episodes, 0)
 
 
 @dataclass
@@ -155,19 +179,21 @@ class AtariConfig(RunConfig):
         return self.env.num_envs * self.loss.n_steps
 
     def validate(self) -> "AtariConfig":
+        """Raises ``ValueError`` naming the bad setting and what is allowed (one line), before
+        anything is built: every setting's type and range, then the combinations."""
         if self.variant not in ATARI_VARIANTS:
             raise ValueError(f"unknown Atari variant {self.variant!r}; choose one of {ATARI_VARIANTS}")
-        if self.rank < 1:
-            raise ValueError(f"rank must be >= 1, got {self.rank}")
-        if self.mlp_layers < 1:
-            raise ValueError(f"mlp_layers must be >= 1, got {self.mlp_layers}")
+        check_types(self, recurse=False)
         if self.compile not in AtariEncoder.COMPILE_MODES:
             raise ValueError(f"compile={self.compile!r}: choose one of {AtariEncoder.COMPILE_MODES}")
         if self.idm_encoder not in IDM_ENCODERS:
             raise ValueError(f"idm_encoder={self.idm_encoder!r}: choose one of {IDM_ENCODERS} "
                              "(shared: the paper's one CNN; own: the inverse model's own CNN)")
-        self.loss.validate()
-        self.optim.validate()
+        if self.init not in INITS:
+            raise ValueError(f"init={self.init!r}: choose one of {INITS}")
+        self.env.validate()
+        self.collector.validate()
+        self.validate_run()  # the settings every family shares: sizes, seed, frames, demo, loss, optim, logger, ppo
         if self.loss.explore_envs:
             raise ValueError("loss.explore_envs (explorer env slots) is built for the gymnasium family; Atari's "
                              "collector does not take it yet")
@@ -177,28 +203,21 @@ class AtariConfig(RunConfig):
         if self.loss.idm_forward_coeff > 0:
             raise ValueError("loss.idm_forward_coeff > 0 (the forward head P_f over next states) needs discrete "
                              "states; Atari frames have none")
-        self.logger.validate()
         if get_variant(self.variant).bc is not None and not self.demo.path:
             raise ValueError(
                 f"variant {self.variant!r} needs expert demos: record them with recipes/atari_demos.py "
                 "and pass demo.path=<folder>"
             )
-        if self.collector.backend not in ("atari", "torchrl", *WORKER_KINDS):
-            raise ValueError(f"collector.backend={self.collector.backend!r}: choose atari, torchrl, "
-                             + " or ".join(WORKER_KINDS))
-        if self.collector.backend in WORKER_KINDS and (self.collector.workers < 1
-                                                        or self.env.num_envs % self.collector.workers):
+        if self.collector.backend in WORKER_KINDS and self.env.num_envs % self.collector.workers:
             raise ValueError(f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
-        worker_devices(self.collector.backend, self.collector.worker_gpus)  # worker_gpus: Ray only
-        if self.collector.env_groups < 1 or self.env.num_envs % self.collector.env_groups:
+        if self.env.num_envs % self.collector.env_groups:
             raise ValueError(f"collector.env_groups={self.collector.env_groups} must divide "
                              f"env.num_envs={self.env.num_envs}")
-        if self.collector.env_groups > 1 and self.collector.backend != "atari":
-            raise ValueError("collector.env_groups > 1 needs collector.backend=atari")
         resolve_device(self.device)
         if self.total_frames < 4 * self.frames_per_batch:
             raise ValueError(f"total_frames={self.total_frames} (game frames) is less than one batch "
-                             f"({self.frames_per_batch} agent steps = {4 * self.frames_per_batch} frames)")
+                             f"(env.num_envs * loss.n_steps = {self.frames_per_batch} agent steps = "
+                             f"{4 * self.frames_per_batch} frames)")
         return self
 
 
@@ -223,6 +242,10 @@ def _worker_env(cfg: AtariConfig, i: int) -> TransformedEnv:
                    num_threads=max(1, cfg.env.num_threads // workers), noop_max=cfg.env.noop_max,
                    max_episode_frames=cfg.env.max_episode_frames)
     return TransformedEnv(env, RewardSum(in_keys=["score"], out_keys=["episode_score"]))
+
+
+#: how to record Atari demos (the end of the messages that refuse a demo folder)
+DEMO_RECIPE = "record them with python recipes/atari_demos.py expert=<model.pt> out=<folder> (then demo.path=<folder>)"
 
 
 def _check_demo_metadata(meta: dict, cfg: AtariConfig, env: AtariEnv, path: str) -> None:
@@ -301,9 +324,11 @@ class AtariFamily(EnvFamily):
         if variant.bc is not None:
             try:
                 setup.demos, meta = load_demos(cfg.demo.path, obs_shape=tuple(base.observation_spec["observation"].shape[1:]),
-                                               obs_dtype=torch.uint8)
+                                               obs_dtype=torch.uint8, require_metadata=DEMO_RECIPE)
                 _check_demo_metadata(meta, cfg, base, cfg.demo.path)
                 _check_frame_stacks(setup.demos, cfg.demo.path)
+                # pairs chain within a trajectory (s'_t == s_{t+1}); sampled, as the frame stacks
+                check_trajectories(setup.demos, cfg.demo.path, DEMO_RECIPE, sample=256)
             except BaseException:
                 self.close_envs(setup)
                 raise
@@ -361,8 +386,8 @@ class AtariFamily(EnvFamily):
         if inverse_model is None or demos is None:
             return dict
         acc_pairs = None
-        if EXPERT_ACTION_KEY in demos.keys():
-            n = min(run.cfg.logger.accuracy_pairs, demos.batch_size.numel())
+        n = min(run.cfg.logger.accuracy_pairs, demos.batch_size.numel())
+        if EXPERT_ACTION_KEY in demos.keys() and n > 0:  # accuracy_pairs=0: the column off (NaN)
             acc_pairs = demos[torch.randperm(demos.batch_size.numel(), generator=torch.Generator().manual_seed(0))[:n]]
             acc_pairs = acc_pairs.to(run.device)
         # NaN where the demos carry no true actions (the column is always there)

@@ -382,8 +382,8 @@ def train_taxi_batched(
     o = cfg.optim
     extras = {k: getattr(o, k) for k in ("weight_decay", "momentum", "centered", "maximize") if getattr(o, k)}
     if extras:
-        raise ValueError(f"the batched fast path implements plain RMSprop (lr, alpha, eps); optim {extras} need "
-                         "engine=torchrl")
+        raise ValueError(f"the batched fast path implements plain RMSprop (lr, alpha, eps); "
+                         f"{', '.join(f'optim.{k}' for k in extras)} (optim {extras}) need engine=torchrl")
     variant = get_variant(cfg.variant)
     model = tabular_model(cfg.env.env_id, cfg.env.kwargs)
     S, A, K, E, T = model.n_states, model.n_actions, len(configs), cfg.env.num_envs, cfg.loss.n_steps

@@ -433,6 +433,10 @@ def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str,
                       "from its weights, optimiser and samplers, but not bit-exactly", stacklevel=2)
         trainer.load_from_file(ckpt, strict="ignore")
     frames = int(trainer.collected_frames)
+    total = settings.get("total_frames")
+    if isinstance(total, int) and frames >= total:  # nothing left to train: finishing would rewrite the run's files
+        raise ValueError(f"resume=true: the run in {out} is already at {frames:,} frames; raise total_frames "
+                         f"(now {total:,}) to train further")
     print(f"resume: continuing from {frames:,} frames ({ckpt})", file=sys.stderr)
 
     def start_bar_at_resumed_frames():  # TorchRL's Trainer.train() opens its bar at 0 even when resumed

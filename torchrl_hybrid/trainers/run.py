@@ -46,16 +46,21 @@ from torchrl_hybrid.trainers.hybrid import (
     param_groups,
     resume_trainer,
 )
+from torchrl_hybrid.utils.config import MAX_FRAMES, MAX_SEED, MAX_THREADS, check_float, check_int, check_types
 from torchrl_hybrid.utils.device import resolve_device
-from torchrl_hybrid.utils.files import prepare_out_dir
+from torchrl_hybrid.utils.files import check_resume_target, prepare_out_dir
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
 __all__ = ["RunConfig", "LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig", "PPOConfig", "LOGGERS", "BC_LABELS", "EnvFamily", "Setup", "Networks", "Run",
            "build_run", "train_run", "finish_run", "make_inverse_model", "load_init_weights"]
 
 LOGGERS = ("csv", "tensorboard", "wandb", "none")
+LOGGER_PACKAGES = {"tensorboard": "tensorboard", "wandb": "wandb"}  # the package (= pyproject extra) each one needs
 BC_LABELS = ("argmax", "soft")
 CLIPS = ("global", "per_group", "per_term")
+# the smallest discount (loss.gamma, and gamma * ppo.gae_lambda for GAE) TorchRL's return estimators take: they
+# keep the powers of the discount above 1e-7, and find none below it (an IndexError deep in the first update)
+MIN_DISCOUNT = 1e-6
 WARMUP_UPDATES = 100  # optim.warmup_frames=None with init_from: the lr warm-up lasts this many updates
 
 
@@ -100,18 +105,24 @@ class LossConfig:
     explore_envs: int = 0
 
     def validate(self) -> None:
-        _need(self.n_steps >= 1, f"loss.n_steps must be >= 1, got {self.n_steps}")
-        _need(0.0 <= self.gamma <= 1.0, f"loss.gamma must be in [0, 1], got {self.gamma}")
+        check_types(self, "loss.")
+        check_int("loss.n_steps", self.n_steps, 1)
+        check_float("loss.gamma", self.gamma, 0.0, 1.0)
+        _need(self.gamma >= MIN_DISCOUNT, f"loss.gamma={self.gamma} must be >= {MIN_DISCOUNT:g}: TorchRL's return "
+              "estimators fail on discounts below 1e-7 (for a short-sighted agent use e.g. 0.01)")
+        # loss weights: a negative one turns its term into one to maximise; above MAX_COEFF float32 losses
+        # and their squared gradients overflow
+        for name in ("critic_coeff", "entropy_coeff", "idm_action_coeff", "idm_embedding_coeff", "idm_forward_coeff",
+                     "bc_coeff", "bc_entropy_floor"):
+            check_float(f"loss.{name}", getattr(self, name), 0.0)
         _need(self.bc_labels in BC_LABELS, f"loss.bc_labels must be one of {BC_LABELS}, got {self.bc_labels!r}")
-        _need(0.0 <= self.bc_confidence < 1.0, f"loss.bc_confidence must be in [0, 1), got {self.bc_confidence}")
-        _need(0.0 <= self.bc_ready_accuracy <= 1.0,
-              f"loss.bc_ready_accuracy must be in [0, 1], got {self.bc_ready_accuracy}")
-        _need(self.bc_start_frames >= 0, f"loss.bc_start_frames must be >= 0, got {self.bc_start_frames}")
-        _need(self.bc_anneal_frames >= 0, f"loss.bc_anneal_frames must be >= 0, got {self.bc_anneal_frames}")
-        _need(0.0 <= self.bc_prior_floor <= 1.0, f"loss.bc_prior_floor must be in [0, 1], got {self.bc_prior_floor}")
-        _need(self.bc_updates >= 0, f"loss.bc_updates must be >= 0, got {self.bc_updates}")
-        _need(self.idm_updates >= 0, f"loss.idm_updates must be >= 0, got {self.idm_updates}")
-        _need(self.explore_envs >= 0, f"loss.explore_envs must be >= 0, got {self.explore_envs}")
+        check_float("loss.bc_confidence", self.bc_confidence, 0.0, 1.0, hi_open=True)
+        check_float("loss.bc_ready_accuracy", self.bc_ready_accuracy, 0.0, 1.0)
+        check_float("loss.bc_prior_floor", self.bc_prior_floor, 0.0, 1.0)
+        check_int("loss.bc_start_frames", self.bc_start_frames, 0, MAX_FRAMES)
+        check_int("loss.bc_anneal_frames", self.bc_anneal_frames, 0, MAX_FRAMES)
+        for name in ("bc_updates", "idm_updates", "explore_envs"):
+            check_int(f"loss.{name}", getattr(self, name), 0)
 
     def loss_kwargs(self) -> dict[str, Any]:
         """The keyword arguments of :func:`~torchrl_hybrid.trainers.hybrid.make_hybrid_loss`."""
@@ -146,9 +157,17 @@ class OptimConfig(RMSpropConfig):
         return torch.optim.RMSprop(params, **kwargs)
 
     def validate(self) -> None:
-        _need(self.lr > 0, f"optim.lr must be > 0, got {self.lr}")
-        _need(self.warmup_frames is None or self.warmup_frames >= 0,
-              f"optim.warmup_frames must be >= 0 (or None: auto), got {self.warmup_frames}")
+        check_types(self, "optim.")
+        # RMSprop moves each weight by about lr per update: above 1 a few updates throw the weights past
+        # any useful scale (and in float32 soon to inf/NaN)
+        check_float("optim.lr", self.lr, 0.0, 1.0, lo_open=True)
+        check_float("optim.eps", self.eps, 0.0, lo_open=True)  # 0: a weight with no gradient yet divides 0 by 0
+        check_float("optim.alpha", self.alpha, 0.0, 1.0, hi_open=True)  # 1: the squared-gradient average never moves
+        check_float("optim.momentum", self.momentum, 0.0, 1.0, hi_open=True)
+        check_float("optim.weight_decay", self.weight_decay, 0.0)
+        check_float("optim.max_grad_norm", self.max_grad_norm, 0.0, lo_open=True)  # 0 clips every step to nothing
+        if self.warmup_frames is not None:
+            check_int("optim.warmup_frames", self.warmup_frames, 0, MAX_FRAMES)
         _need(self.clip in CLIPS, f"optim.clip must be one of {CLIPS}, got {self.clip!r}")
         _need(self._target_ == "torch.optim.RMSprop",
               f"optim._target_={self._target_!r}: the agent's optimiser is torch.optim.RMSprop (the paper's); "
@@ -167,10 +186,11 @@ class PPOConfig:
     normalize_advantage: bool = True
 
     def validate(self) -> None:
-        _need(self.epochs >= 1 and self.minibatches >= 1,
-              f"ppo.epochs and ppo.minibatches must be >= 1, got {self.epochs}, {self.minibatches}")
-        _need(0.0 < self.clip_epsilon < 1.0, f"ppo.clip_epsilon must be in (0, 1), got {self.clip_epsilon}")
-        _need(0.0 <= self.gae_lambda <= 1.0, f"ppo.gae_lambda must be in [0, 1], got {self.gae_lambda}")
+        check_types(self, "ppo.")
+        check_int("ppo.epochs", self.epochs, 1)
+        check_int("ppo.minibatches", self.minibatches, 1)
+        check_float("ppo.clip_epsilon", self.clip_epsilon, 0.0, 1.0, lo_open=True, hi_open=True)
+        check_float("ppo.gae_lambda", self.gae_lambda, 0.0, 1.0)
 
 
 @dataclass
@@ -183,20 +203,38 @@ class DemoConfig:
     curriculum_k0: int = 10  # curriculum rho: first k steps of each trajectory at the start ...
     curriculum_frames_per_step: int = 8000  # ... one step more every this many frames
 
+    def validate(self, variant: str | None = None) -> None:
+        """``variant``: the run's, when it clones the expert from these demos (its BC batches
+        must hold at least one pair)."""
+        check_types(self, "demo.")
+        check_int("demo.batch_size", self.batch_size, 0)
+        if variant is not None:
+            _need(self.batch_size >= 1, f"demo.batch_size={self.batch_size}: variant {variant} clones the expert from "
+                  "batches of this many demo pairs, so it must be >= 1 (variant=a2c trains without demos)")
+        check_int("demo.curriculum_k0", self.curriculum_k0, 1)
+        check_int("demo.curriculum_frames_per_step", self.curriculum_frames_per_step, 1, MAX_FRAMES)
+
 
 @dataclass
 class LoggerConfig:
     """The learning curve, TorchRL's logger, progress bar and checkpoints; each env family
     adds its evaluation settings."""
 
-    backend: str = "csv"          # csv | tensorboard | wandb | none (metrics.csv is always written)
+    # csv | tensorboard | wandb | none (metrics.csv is always written); tensorboard and wandb need their
+    # package: pip install -e '.[tensorboard]' or '.[wandb]'
+    backend: str = "csv"
     log_every_frames: int = 2000  # frames between learning-curve rows
     progress_bar: bool = True
     checkpoint: bool = True       # TorchRL trainer checkpoints in out_dir/checkpoint (what resume=true reads)
 
     def validate(self) -> None:
+        check_types(self, "logger.")
         _need(self.backend in LOGGERS, f"logger.backend must be one of {LOGGERS}, got {self.backend!r}")
-        _need(self.log_every_frames >= 1, f"logger.log_every_frames must be >= 1, got {self.log_every_frames}")
+        package = LOGGER_PACKAGES.get(self.backend)
+        _need(package is None or _has_package(package),
+              f"logger.backend={self.backend} needs the {package} package, which is not installed: "
+              f"pip install -e '.[{package}]' (or logger.backend=csv)")
+        check_int("logger.log_every_frames", self.log_every_frames, 1, MAX_FRAMES)
 
 
 @dataclass
@@ -236,13 +274,33 @@ class RunConfig:
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
+    def validate_run(self) -> None:
+        """The settings every run has and the shared groups (demo, loss, optim, logger, ppo, the
+        RL base); each family's validate calls it after its own variant check and adds its groups."""
+        check_types(self, recurse=False)
+        variant = get_variant(self.variant)
+        check_int("seed", self.seed, 0, MAX_SEED)
+        check_int("total_frames", self.total_frames, 1, MAX_FRAMES)
+        for name in ("rank", "d_state", "d", "mlp_layers"):
+            check_int(name, getattr(self, name), 1)
+        check_int("threads", self.threads, 0, MAX_THREADS)
+        _need(not (self.resume and self.overwrite), "resume=true and overwrite=true contradict each other: choose one")
+        self.demo.validate(self.variant if variant.bc is not None else None)
+        self.loss.validate()
+        self.optim.validate()
+        self.logger.validate()
+        self.ppo.validate()
+        self.validate_rl()
+
     def validate_rl(self) -> None:
-        """The RL base's settings (each family's validate calls it)."""
+        """The RL base and its combinations with the other groups (validate_run calls it)."""
         from torchrl_hybrid.trainers.hybrid import RL_BASES
 
         _need(self.rl in RL_BASES, f"rl must be one of {RL_BASES}, got {self.rl!r}")
         if self.rl == "ppo":
-            self.ppo.validate()
+            _need(self.loss.gamma * self.ppo.gae_lambda >= MIN_DISCOUNT,
+                  f"loss.gamma * ppo.gae_lambda = {self.loss.gamma * self.ppo.gae_lambda:g} must be >= {MIN_DISCOUNT:g}: "
+                  "TorchRL's GAE fails below 1e-7; raise ppo.gae_lambda")
             _need(self.frames_per_batch % self.ppo.minibatches == 0,
                   f"ppo.minibatches={self.ppo.minibatches} must divide a batch of {self.frames_per_batch} transitions "
                   "(env.num_envs * loss.n_steps)")
@@ -255,6 +313,13 @@ class RunConfig:
 def _need(ok: bool, msg: str) -> None:
     if not ok:
         raise ValueError(msg)
+
+
+def _has_package(name: str) -> bool:
+    """Whether ``name`` can be imported (without importing it)."""
+    import importlib.util
+
+    return importlib.util.find_spec(name) is not None
 
 
 @dataclass
@@ -455,6 +520,8 @@ def build_run(cfg, family: EnvFamily) -> Run:
     device = resolve_device(cfg.device, small_model=family.small_model(cfg))  # networks, learner, demos; envs: CPU
     variant = get_variant(cfg.variant)
     out = Path(cfg.out_dir)
+    if cfg.resume:  # a finished run that total_frames does not extend: refused before any file is touched
+        check_resume_target(out, cfg.total_frames)
     lock = prepare_out_dir(out, resume=cfg.resume, overwrite=cfg.overwrite)  # held while the run lives
     setup = collector = None
     try:

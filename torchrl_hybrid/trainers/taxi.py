@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import gymnasium
 import torch
 from torchrl.collectors import Collector
 
@@ -29,6 +30,9 @@ from torchrl_hybrid.data import (
     CurriculumSampler,
     VisitedStateSampler,
     apply_demo_noise,
+    check_observation_space,
+    check_tabular_transitions,
+    check_trajectories,
     load_demos,
     save_demos,
     tabular_state_pairs,
@@ -48,10 +52,11 @@ from torchrl_hybrid.trainers.run import (
     Run,
     RunConfig,
     Setup,
+    _need,
     build_run,
     train_run,
 )
-from torchrl_hybrid.utils.config import dataclass_from_dict
+from torchrl_hybrid.utils.config import MAX_FRAMES, check_float, check_int, check_types, dataclass_from_dict
 from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 
@@ -63,6 +68,7 @@ __all__ = ["TaxiConfig", "GymFamily", "config_from_dict", "make_taxi_demos", "bu
            "record_episodes", "load_gym_expert"]
 
 RHOS = ("visited", "uniform", "curriculum")
+EPSILON_MODES = ("non_optimal", "authors")
 DEMO_FORMS = ("per_state", "trajectories")
 ENGINES = ("torchrl", "batched")
 
@@ -84,6 +90,18 @@ class EnvConfig:
     # SyncVectorEnv behind TorchRL's GymWrapper; auto = tabular if the env has P, else vector
     backend: str = "auto"
     max_episode_steps: int = 50  # authors' code capped episodes at 50 steps (gymnasium's default for Taxi: 200)
+
+    def validate(self) -> None:
+        check_types(self, "env.")
+        if ":" not in self.env_id:  # module:EnvId ids register on import, when gym.make imports the module
+            try:
+                gymnasium.spec(self.env_id)
+            except gymnasium.error.Error as err:
+                raise ValueError(f"env.env_id={self.env_id}: {_one_line(err)} (gymnasium.pprint_registry() lists the "
+                                 "registered ids, e.g. Taxi-v4, FrozenLake-v1, CartPole-v1)") from None
+        _need(self.backend in BACKENDS, f"env.backend must be one of {BACKENDS}, got {self.backend!r}")
+        check_int("env.num_envs", self.num_envs, 1)
+        check_int("env.max_episode_steps", self.max_episode_steps, 1, MAX_FRAMES)
 
 
 @dataclass
@@ -116,11 +134,28 @@ class GymDemoConfig(DemoConfig):
     # Atari curriculum (curriculum_k0, curriculum_frames_per_step)
     rho: str = "visited"
 
+    def validate(self, variant: str | None = None) -> None:
+        super().validate(variant)
+        _need(self.form in DEMO_FORMS, f"demo.form must be one of {DEMO_FORMS}, got {self.form!r}")
+        check_int("demo.num_trajectories", self.num_trajectories, 1)
+        for name in ("eta", "epsilon"):
+            check_float(f"demo.{name}", getattr(self, name), 0.0, 1.0, hi_open=True)
+        _need(self.epsilon_mode in EPSILON_MODES,
+              f"demo.epsilon_mode must be one of {EPSILON_MODES}, got {self.epsilon_mode!r}")
+        # 0 would make the built-in expert indifferent to everything after the next reward
+        check_float("demo.expert_gamma", self.expert_gamma, 0.0, 1.0, lo_open=True)
+        _need(self.rho in RHOS, f"demo.rho must be one of {RHOS}, got {self.rho!r}")
+
 
 @dataclass
 class GymLoggerConfig(LoggerConfig):
     eval_episodes: int = 100        # greedy episodes of every learning-curve row (eval_return)
     final_eval_episodes: int = 300  # greedy episodes of the final evaluation (summary.json's final_return)
+
+    def validate(self) -> None:
+        super().validate()
+        check_int("logger.eval_episodes", self.eval_episodes, 1)
+        check_int("logger.final_eval_episodes", self.final_eval_episodes, 1)
 
 
 @dataclass
@@ -137,6 +172,13 @@ class CollectorConfig:
     # on the CPU (multi_sync workers always do) and each batch is moved to the learner's device
     worker_gpus: float = 0.0
 
+    def validate(self) -> None:
+        check_types(self, "collector.")
+        _need(self.kind in COLLECTORS, f"collector.kind must be one of {COLLECTORS}, got {self.kind!r}")
+        check_int("collector.workers", self.workers, 1)
+        check_float("collector.worker_gpus", self.worker_gpus, 0.0, cap=1024)
+        worker_devices(self.kind, self.worker_gpus)  # worker_gpus: Ray only
+
 
 COLLECTORS = ("single", "multi_sync", "ray")
 
@@ -147,6 +189,11 @@ class EncoderConfig:
 
     hidden: int = 64
     num_layers: int = 2
+
+    def validate(self) -> None:
+        check_types(self, "encoder.")
+        check_int("encoder.hidden", self.hidden, 1)
+        check_int("encoder.num_layers", self.num_layers, 1)
 
 
 @dataclass
@@ -172,57 +219,46 @@ class TaxiConfig(RunConfig):
     collector: CollectorConfig = field(default_factory=CollectorConfig)
 
     def validate(self) -> "TaxiConfig":
-        """Raises ``ValueError`` naming the bad setting and what is allowed."""
+        """Raises ``ValueError`` naming the bad setting and what is allowed (one line), before
+        anything is built: every setting's type and range, then the combinations."""
         get_variant(self.variant)
+        check_types(self, recurse=False)
+        _need(self.engine in ENGINES, f"engine must be one of {ENGINES}, got {self.engine!r}")
         if self.engine == "batched" and self.resume:
-            raise ValueError("resume=true needs engine=torchrl (the batched engine writes no checkpoint)")
+            raise ValueError("resume=true needs engine=torchrl (the batched engine writes no checkpoint); "
+                             "drop resume=true, or pass engine=torchrl")
         if self.engine == "batched" and self.init_from:
             raise ValueError("init_from needs engine=torchrl (the batched engine starts from fresh weights)")
         if resolve_device(self.device).type != "cpu" and self.engine == "batched" and self.device != "auto":
             raise ValueError(f"engine=batched runs on the CPU only; use device=cpu (or device=auto), "
                              f"or engine=torchrl for device={self.device}")
-
-        def need(ok: bool, msg: str):
-            if not ok:
-                raise ValueError(msg)
-
-        need(self.engine in ENGINES, f"engine must be one of {ENGINES}, got {self.engine!r}")
-        need(self.collector.kind in COLLECTORS, f"collector.kind must be one of {COLLECTORS}, got {self.collector.kind!r}")
+        self.env.validate()
+        self.collector.validate()
+        self.encoder.validate()
+        self.validate_run()  # the settings every family shares: sizes, seed, frames, demo, loss, optim, logger, ppo
         if self.collector.kind != "single":
-            need(self.collector.workers >= 1 and self.env.num_envs % self.collector.workers == 0,
-                 f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
-            need(self.engine == "torchrl", "collector.kind=multi_sync|ray needs engine=torchrl")
-        worker_devices(self.collector.kind, self.collector.worker_gpus)  # worker_gpus: Ray only
-        need(self.rank >= 1, f"rank must be an integer >= 1, got {self.rank}")
-        need(self.mlp_layers >= 1, f"mlp_layers must be >= 1, got {self.mlp_layers}")
-        for name in ("eta", "epsilon"):
-            v = getattr(self.demo, name)
-            need(0.0 <= v < 1.0, f"demo.{name} must be in [0, 1), got {v}")
-        need(self.demo.rho in RHOS, f"demo.rho must be one of {RHOS}, got {self.demo.rho!r}")
-        need(self.demo.form in DEMO_FORMS, f"demo.form must be one of {DEMO_FORMS}, got {self.demo.form!r}")
-        need(self.env.backend in BACKENDS, f"env.backend must be one of {BACKENDS}, got {self.env.backend!r}")
-        need(self.env.num_envs >= 1, f"env.num_envs must be >= 1, got {self.env.num_envs}")
-        need(self.env.max_episode_steps >= 1, f"env.max_episode_steps must be >= 1, got {self.env.max_episode_steps}")
-        self.loss.validate()
-        self.optim.validate()
-        self.validate_rl()
+            _need(self.env.num_envs % self.collector.workers == 0,
+                  f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
+            _need(self.engine == "torchrl", "collector.kind=multi_sync|ray needs engine=torchrl")
         envs_per_worker = self.env.num_envs // (self.collector.workers if self.collector.kind != "single" else 1)
-        need(self.loss.explore_envs < envs_per_worker,
-             f"loss.explore_envs={self.loss.explore_envs} must leave at least one env following the policy in each "
-             f"collector ({envs_per_worker} envs each)")
-        need(self.rl == "a2c" or self.engine == "torchrl", f"rl={self.rl} needs engine=torchrl (the batched engine is "
-             "the paper's A2C)")
-        need(
+        _need(self.loss.explore_envs < envs_per_worker,
+              f"loss.explore_envs={self.loss.explore_envs} must leave at least one env following the policy in each "
+              f"collector ({envs_per_worker} envs each)")
+        _need(self.rl == "a2c" or self.engine == "torchrl", f"rl={self.rl} needs engine=torchrl (the batched engine is "
+              "the paper's A2C)")
+        _need(
             self.total_frames >= self.frames_per_batch,
             f"total_frames={self.total_frames} is less than one batch (env.num_envs * loss.n_steps = {self.frames_per_batch})",
         )
-        self.logger.validate()
-        need(self.logger.eval_episodes >= 1 and self.logger.final_eval_episodes >= 1, "eval episode counts must be >= 1")
         return self
 
     @property
     def frames_per_batch(self) -> int:
         return self.env.num_envs * self.loss.n_steps
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split())
 
 
 def config_from_dict(d: dict[str, Any]) -> TaxiConfig:
@@ -233,7 +269,9 @@ def config_from_dict(d: dict[str, Any]) -> TaxiConfig:
 def given_demos(cfg: TaxiConfig, obs_shape, obs_dtype):
     """The demos a run is given rather than records: ``demo.path`` (a folder written by
     ``save_demos``) or ``demo.minari`` (a local Minari dataset, actions dropped);
-    ``None`` when neither is set. Demos recorded on another env are refused."""
+    ``None`` when neither is set. Demos recorded on another env are refused, and so are
+    trajectories whose pairs do not chain and vector observations outside the env's
+    observation space (:mod:`torchrl_hybrid.data.checks`)."""
     if cfg.demo.path and cfg.demo.minari:
         raise ValueError(f"demo.path={cfg.demo.path} and demo.minari={cfg.demo.minari}: choose one demo source")
     if cfg.demo.path:
@@ -249,7 +287,24 @@ def given_demos(cfg: TaxiConfig, obs_shape, obs_dtype):
         return None
     if meta.get("env_id") not in (None, cfg.env.env_id):
         raise ValueError(f"{source}: demos are for {meta.get('env_id')}, this run plays {cfg.env.env_id}")
+    fix = demo_fix(cfg)
+    check_trajectories(demos, source, fix)
+    if obs_dtype.is_floating_point:
+        env = gymnasium.make(cfg.env.env_id, **cfg.env.kwargs)
+        space = env.observation_space
+        env.close()
+        if isinstance(space, gymnasium.spaces.Box):
+            check_observation_space(demos, space.low, space.high, source, fix, env_id=cfg.env.env_id)
     return demos
+
+
+def demo_fix(cfg: TaxiConfig) -> str:
+    """What to do about demos a check refuses (the end of its message)."""
+    if cfg.demo.minari:
+        return ("recreate the Minari dataset from the env's own episodes (minari.DataCollector), or record demos "
+                "with demo.save_path=<folder>")
+    return ("re-record them: a run of recipes/train.py with demo.save_path=<folder> writes the demos it uses "
+            "(the built-in expert's, or demo.expert=<model.pt>'s where the env has no table P)")
 
 
 def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Generator):
@@ -265,17 +320,9 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
     demos = given_demos(cfg, obs_shape=(), obs_dtype=torch.long)
     source = cfg.demo.path or cfg.demo.minari
     if demos is not None:
-        s = torch.cat([demos["observation"], demos["next", "observation"]])
-        if s.min() < 0 or s.max() >= model.n_states:
-            raise ValueError(f"{source}: states outside [0, {model.n_states}); demos are for another env")
-        # every pair must be a transition of the env under some action (the table says which)
-        obs, nxt = demos["observation"].reshape(-1), demos["next", "observation"].reshape(-1)
-        possible = ((model.next_state[obs] == nxt.view(-1, 1, 1)) & (model.prob[obs] > 0)).flatten(1).any(-1)
-        if not bool(possible.all()):
-            i = int((~possible).nonzero()[0])
-            raise ValueError(f"{source}: {int((~possible).sum())} of {possible.numel()} pairs are not transitions "
-                             f"of {cfg.env.env_id} under any action (first: pair {i}, {int(obs[i])} -> {int(nxt[i])}); "
-                             "demos for another env, or shuffled next states")
+        # every pair (s, s') must be a transition of the table P, and (s, a, s') where the true actions are stored
+        check_tabular_transitions(demos, model, source, demo_fix(cfg), env_id=cfg.env.env_id,
+                                  action_key=EXPERT_ACTION_KEY)
     elif cfg.demo.form == "per_state":
         demos = tabular_state_pairs(model, policy)
     else:
@@ -384,7 +431,11 @@ class GymFamily(EnvFamily):
     pbar_keys = ("return_mean", "eval_return")
 
     def setup(self, cfg: TaxiConfig, variant, device, generator) -> Setup:
-        kind, size, A = observation_kind(cfg.env.env_id, cfg.env.kwargs)
+        try:
+            kind, size, A = observation_kind(cfg.env.env_id, cfg.env.kwargs)
+        except (gymnasium.error.Error, ModuleNotFoundError, TypeError) as err:  # unknown id or module, bad kwargs
+            raise ValueError(f"env.env_id={cfg.env.env_id} with env.kwargs={cfg.env.kwargs}: gymnasium cannot make "
+                             f"it ({type(err).__name__}: {_one_line(err)}); check the id and its keyword arguments") from None
         extra = {"kind": kind, "size": size, "model": None, "expert": None, "expert_actor": None}
         demos = None
         if kind == "discrete":

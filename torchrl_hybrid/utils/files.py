@@ -11,7 +11,8 @@ from typing import Any
 
 import torch
 
-__all__ = ["RUN_FILES", "check_memmap_folder", "prepare_out_dir", "read_json"]
+__all__ = ["RUN_FILES", "take_lock", "check_memmap_folder", "check_resume_target", "checkpoint_frames", "out_dir_problem", "out_dir_from_overrides",
+           "prepare_out_dir", "read_json"]
 
 #: what a training run writes into its out_dir (``overwrite=true`` removes exactly these)
 RUN_FILES = ("summary.json", "model.pt", "metrics.csv", "learning_curve.png", "config.json", "checkpoint", "logs")
@@ -78,6 +79,81 @@ def _recover_checkpoint(ckpt: Path) -> None:
               f"({backups[-1].name})", flush=True)
 
 
+def out_dir_problem(out: str | Path) -> str | None:
+    """Why ``out`` cannot be a run's folder (it, or a folder above it, is a file), as one
+    line naming the setting and the fix; ``None`` when it can."""
+    out = Path(out)
+    for p in (out, *out.parents):
+        if p.exists() and not p.is_dir():
+            what = "is a file" if p == out else f"is inside {p}, which is a file"
+            return f"out_dir={out} {what}, not a folder; choose another out_dir (or move the file away)"
+    return None
+
+
+def out_dir_from_overrides(overrides: list[str]) -> str | None:
+    """The folder a Hydra command line puts its run in (``out_dir=...`` or
+    ``hydra.run.dir=...``, the last one given; ``None`` when neither is given or when the
+    value is an interpolation only Hydra resolves)."""
+    found = None
+    for arg in overrides:
+        key, eq, value = arg.partition("=")
+        if eq and key.lstrip("+~") in ("out_dir", "hydra.run.dir"):
+            value = value.strip()
+            if len(value) >= 2 and value[0] == value[-1] and value[0] in "'\"":
+                value = value[1:-1]
+            found = None if "${" in value or not value else value
+    return found
+
+
+def checkpoint_frames(ckpt: str | Path) -> int | None:
+    """The frames a TorchRL trainer checkpoint (``out_dir/checkpoint``) had collected, read
+    from its ``trainer_state`` component without loading it; ``None`` when the folder is not
+    in the format this reads (the frames are then known only once it is loaded)."""
+    ckpt = Path(ckpt)
+    try:
+        manifest = json.loads((ckpt / "manifest.json").read_text())
+        state = json.loads((ckpt / manifest["components"]["trainer_state"]["path"] / "state.json").read_text())
+        for key, value in state["items"]:
+            if key.get("value") == "collected_frames":
+                frames = value.get("value")
+                return frames if isinstance(frames, int) and not isinstance(frames, bool) else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        pass
+    return None
+
+
+def check_resume_target(out: str | Path, total_frames: int, checkpoint: str = "checkpoint") -> None:
+    """``resume=true`` on a run whose checkpoint already has ``total_frames`` (or more) is
+    refused, before any file of the run is touched: resuming it would train nothing and
+    rewrite its summary and model with this run's ``total_frames``."""
+    out = Path(out)
+    ckpt = out / checkpoint
+    if not ckpt.is_dir():
+        return  # nothing to resume (prepare_out_dir says what is wrong, if anything)
+    frames = checkpoint_frames(ckpt)
+    if frames is None and (out / "summary.json").is_file():  # another checkpoint format: the finished run's summary
+        data = read_json(out / "summary.json", "run summary")
+        frames = data.get("frames") if isinstance(data, dict) else None
+        frames = frames if isinstance(frames, int) and not isinstance(frames, bool) else None
+    if frames is not None and frames >= total_frames:
+        raise ValueError(f"resume=true: the run in {out} is already at {frames:,} frames; raise total_frames "
+                         f"(now {total_frames:,}) to train further")
+
+
+def take_lock(path: Path, holder: str):
+    """An exclusive lock on ``path`` (created), held while the returned file stays open; the OS
+    releases it when the process ends, even on SIGKILL. Refused in one line while ``holder``
+    (e.g. "another run") holds it."""
+    lock = open(path, "w")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.close()
+        raise ValueError(f"out_dir {path.parent} is in use by {holder} (it holds {path}); "
+                         "wait for it to finish or choose another out_dir") from None
+    return lock
+
+
 def prepare_out_dir(out: str | Path, *, resume: bool = False, overwrite: bool = False,
                     checkpoint: str = "checkpoint"):
     """Makes ``out`` ready for a run and returns the open lock file (keep it for the
@@ -93,16 +169,11 @@ def prepare_out_dir(out: str | Path, *, resume: bool = False, overwrite: bool = 
     out = Path(out)
     if resume and overwrite:
         raise ValueError("resume=true and overwrite=true contradict each other: choose one")
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"out_dir {out} is a file, not a folder")
+    problem = out_dir_problem(out)
+    if problem:
+        raise ValueError(problem)
     out.mkdir(parents=True, exist_ok=True)
-    lock = open(out / ".lock", "w")
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        lock.close()
-        raise ValueError(f"out_dir {out} is in use by another run (it holds {out / '.lock'}); "
-                         "wait for that run or choose another out_dir") from None
+    lock = take_lock(out / ".lock", "another run")
     if resume:
         _recover_checkpoint(out / checkpoint)
     present = [f for f in RUN_FILES if (out / f).exists()]

@@ -105,6 +105,15 @@ def _run_local(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, fres
         ex.shutdown(wait=True, cancel_futures=True)
 
 
+#: Ray errors that mean the cluster failed rather than a job (checked by name: Ray versions differ)
+_CLUSTER_ERRORS = ("LocalRayletDiedError", "RaySystemError", "ObjectLostError")
+
+
+def _continue_hint(what: str) -> str:
+    return (f"{what}; the study stops here. Run the same command again to continue: finished runs are kept "
+            "and interrupted ones resume from their checkpoints")
+
+
 def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "local", workers: int = 2,
              address: str | None = None, cpus_per_job: float = 1.0, max_retries: int = 2,
              fresh_process: bool = False, poll: Callable[[], None] | None = None) -> Iterator[Any]:
@@ -148,20 +157,28 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
     started_here = init_ray(address, num_cpus=int(math.ceil(workers * cpus_per_job)))
     remote = ray.remote(num_cpus=cpus_per_job, max_retries=max_retries)(_ray_job)
     pending = {remote.remote(fn, job): i for i, job in enumerate(jobs)}
+    # the cluster itself failing (this node's raylet died, objects lost, ...): not the job's fault
+    lost_cluster = tuple(getattr(ray.exceptions, n) for n in _CLUSTER_ERRORS if hasattr(ray.exceptions, n))
     try:
         while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
+            try:
+                done, _ = ray.wait(list(pending), num_returns=1)
+            except lost_cluster as err:
+                raise RuntimeError(_continue_hint(f"the Ray cluster failed ({type(err).__name__}: {err})")) from err
             i = pending.pop(done[0])
             try:
                 yield ray.get(done[0])
             except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
                     ray.exceptions.OutOfMemoryError) as err:
-                raise RuntimeError(
-                    f"job {i} of {len(jobs)} lost its worker {max_retries + 1} times ({type(err).__name__}); the "
-                    "study stops here. Run the same command again to continue: finished runs are kept and "
-                    "interrupted ones resume from their checkpoints") from err
+                raise RuntimeError(_continue_hint(
+                    f"job {i} of {len(jobs)} lost its worker {max_retries + 1} times ({type(err).__name__})")) from err
+            except lost_cluster as err:
+                raise RuntimeError(_continue_hint(f"the Ray cluster failed ({type(err).__name__}: {err})")) from err
     finally:
-        for ref in pending:
-            ray.cancel(ref, force=True)
+        try:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+        except lost_cluster:  # nothing left to cancel them on; the error above says what to do
+            pass
         if started_here:
             ray.shutdown()
