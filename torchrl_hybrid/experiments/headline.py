@@ -50,6 +50,11 @@ def _ci(x) -> str:
 BASES = {"a2c": ("a2c", "hybrid_dual"), "ppo": ("ppo", "hybrid_dual_ppo")}
 
 
+def _rl(name: str, arm: dict) -> str:
+    """An arm's RL base; summaries written before they stored it name it by GYM_ARMS' suffix."""
+    return arm.get("rl") or ("ppo" if name == "ppo" or name.endswith("_ppo") else "a2c")
+
+
 def headline_rows(studies: dict[str, str | Path], oracle: str = "hybrid_true") -> list[dict[str, Any]]:
     """One row per env and RL base run there (``a2c``, ``ppo``): ``studies`` maps an env's label
     to its comparison's out_dir. Each row holds the arms on that base only (their ``rl``)."""
@@ -63,7 +68,7 @@ def headline_rows(studies: dict[str, str | Path], oracle: str = "hybrid_true") -
                              "against")
         for rl in bases:
             base, paper = BASES[rl]
-            arms = {k: a for k, a in all_arms.items() if a.get("rl", "a2c") == rl}
+            arms = {k: a for k, a in all_arms.items() if _rl(k, a) == rl}
             rows.append(_row(f"{label}" if len(bases) == 1 else f"{label}, {rl.upper()}", out_dir, summary, arms,
                              base, paper, oracle, rl))
     return rows
