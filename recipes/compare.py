@@ -10,7 +10,8 @@ The run settings are those of recipes/train.py (recipes/config/taxi.yaml and its
 torchrl_hybrid/experiments/gym_compare.py, e.g. hybrid_dual_clip_apart), ``+compare.arms={name:
 {variant: ..., base: ..., <settings>}}`` (arms of your own), ``+compare.seeds=[...]``
 (default [0, 1, 2]) and ``+compare.workers=N`` (default 2) choose the runs;
-``+compare.launcher=ray`` runs them as Ray tasks (``+compare.address=<cluster>`` joins an
+``+compare.analyse_only=true`` starts no run and tabulates the finished ones (each arm
+with the seeds it has); ``+compare.launcher=ray`` runs them as Ray tasks (``+compare.address=<cluster>`` joins an
 existing cluster; without it a local one starts). Finished runs are kept; an interrupted
 one resumes from its checkpoint. Runs in ``out_dir`` made with other settings are refused,
 each difference named (``overwrite=true`` runs them again with the new settings); a folder
@@ -42,11 +43,12 @@ def main(cfg: DictConfig) -> None:
     in_process = options.get("workers", 2) == 1 and options.get("launcher", "local") == "local"
     configure_process(raw.get("threads") if in_process else None)  # workers=1: the runs train here
     try:
-        known = ("variants", "arms", "seeds", "workers", "launcher", "address", "max_retries")
+        known = ("variants", "arms", "seeds", "workers", "launcher", "address", "max_retries", "analyse_only")
         unknown = set(options) - set(known)
         if unknown:
             raise ValueError(f"unknown compare option(s) {sorted(unknown)}; known: {', '.join(known)}")
-        command = " ".join(["python recipes/compare.py", *sys.argv[1:]])
+        # the README's Rerun line: without analyse_only, which would only redraw (dropping it runs the rest)
+        command = " ".join(["python recipes/compare.py", *(a for a in sys.argv[1:] if "compare.analyse_only" not in a)])
         run_gym_compare(GymCompareConfig(base=raw, out_dir=out_dir, command=command, overwrite=overwrite, **options))
     except (ValueError, TypeError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)

@@ -36,6 +36,11 @@ def test_a_compare_rerun_with_other_settings_is_refused_then_rerun_with_overwrit
     assert "1 run(s) to do" in capsys.readouterr().out
     assert json.loads((tmp_path / "a2c_s0" / "config.json").read_text())["optim"]["lr"] == 0.01
     assert "Rerun: `cmd two`" in (tmp_path / "README.md").read_text()
+    # analyse_only: nothing trains; the finished runs are tabulated, the missing ones named
+    capsys.readouterr()
+    result = run_gym_compare(dataclasses.replace(changed, seeds=[0, 1], analyse_only=True))
+    assert "analyse_only: 1 run(s) not finished, left out: a2c_s1" in capsys.readouterr().out
+    assert not (tmp_path / "a2c_s1").exists() and result["table"][0]["seeds"] == 1
     # a damaged summary.json is named, not a bare JSON error
     (tmp_path / "a2c_s0" / "summary.json").write_text("")
     with pytest.raises(ValueError, match=r"a2c_s0/summary.json: malformed run summary"):

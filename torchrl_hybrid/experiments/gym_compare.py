@@ -81,6 +81,8 @@ class GymCompareConfig:
     # runs of out_dir made with other settings than asked now are refused (naming each difference);
     # overwrite=true runs them again with the new settings
     overwrite: bool = False
+    # start no run: tabulate the finished runs of variants x seeds (each arm with the seeds it has)
+    analyse_only: bool = False
 
     @property
     def all_arms(self) -> dict[str, dict]:
@@ -190,6 +192,11 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
                 raise ValueError(f"{variant}: {err}") from None
             planned.append((f"{variant}_s{seed}", out, d, dataclasses.asdict(full)))
     with open_study(cfg.out_dir, "gym_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
+        if cfg.analyse_only:
+            todo = [name for name, out, _, _ in planned if not (out / "summary.json").exists()]
+            print(f"analyse_only: {len(todo)} run(s) not finished, left out" + (f": {', '.join(todo)}" if todo else ""),
+                  flush=True)
+            return analyse_gym_compare(cfg)
         changed = changed_runs([(name, out, full) for name, out, _, full in planned], _RESUME_KEYS + STUDY_KEYS,
                                ignore=("logger.progress_bar",), defaults=dataclasses.asdict(TaxiConfig()))
         if not cfg.overwrite:
