@@ -22,7 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from torchrl_hybrid.experiments.study import changed_runs, open_study, refuse_changed
+from torchrl_hybrid.experiments.study import open_study, planned_run, runs_to_do
 from torchrl_hybrid.utils.config import flatten_dict, merge_dicts
 from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
@@ -310,19 +310,11 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                 d = merge_dicts(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
                                "out_dir": str(out), "env": {"game": game},
                                "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
-                try:  # a misspelt override fails here, before any run has started
-                    full = atari_config(d)
-                    full.validate()
-                except (TypeError, ValueError) as err:
-                    raise ValueError(f"{game}/{name}: {err}") from None
-                planned.append((f"{game}/{name}_s{seed}", out, d, dataclasses.asdict(full)))
+                planned.append(planned_run(f"{game}/{name}_s{seed}", out, d, atari_config))
     with open_study(cfg.out_dir, "atari_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
-        changed = changed_runs([(n, out, full) for n, out, _, full in planned], _RESUME_KEYS + STUDY_KEYS,
-                               ignore=_RESUME_IGNORE, defaults=dataclasses.asdict(AtariConfig()))
-        if not cfg.overwrite:
-            refuse_changed(changed, cfg.out_dir)
-        jobs = [(merge_dicts(d, {"overwrite": True}) if n in changed else d, n)
-                for n, out, d, _ in planned if n in changed or not (out / "summary.json").exists()]
+        named, changed = runs_to_do(planned, cfg.out_dir, _RESUME_KEYS + STUDY_KEYS, ignore=_RESUME_IGNORE,
+                                    defaults=dataclasses.asdict(AtariConfig()), overwrite=cfg.overwrite)
+        jobs = [(d, n) for n, d in named]
         print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else "")
               + (f" ({len(changed)} again with the new settings)" if changed else ""), flush=True)
         t0 = time.perf_counter()

@@ -16,7 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from torchrl_hybrid.experiments.study import changed_runs, open_study, refuse_changed
+from torchrl_hybrid.experiments.study import open_study, planned_run, runs_to_do
 from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
@@ -185,24 +185,16 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
             out = Path(cfg.out_dir) / f"{variant}_s{seed}"
             d = merge_dicts(merge_dicts(cfg.base, cfg.run_settings(variant)),
                             {"seed": seed, "out_dir": str(out), "logger": {"progress_bar": bar}})
-            try:  # a misspelt or out-of-range setting fails here, before any run has started
-                full = config_from_dict(d)
-                full.validate()
-            except (TypeError, ValueError) as err:
-                raise ValueError(f"{variant}: {err}") from None
-            planned.append((f"{variant}_s{seed}", out, d, dataclasses.asdict(full)))
+            planned.append(planned_run(f"{variant}_s{seed}", out, d, config_from_dict))
     with open_study(cfg.out_dir, "gym_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
         if cfg.analyse_only:
             todo = [name for name, out, _, _ in planned if not (out / "summary.json").exists()]
             print(f"analyse_only: {len(todo)} run(s) not finished, left out" + (f": {', '.join(todo)}" if todo else ""),
                   flush=True)
             return analyse_gym_compare(cfg)
-        changed = changed_runs([(name, out, full) for name, out, _, full in planned], _RESUME_KEYS + STUDY_KEYS,
-                               ignore=("logger.progress_bar",), defaults=dataclasses.asdict(TaxiConfig()))
-        if not cfg.overwrite:
-            refuse_changed(changed, cfg.out_dir)
-        jobs = [merge_dicts(d, {"overwrite": True}) if name in changed else d
-                for name, out, d, _ in planned if name in changed or not (out / "summary.json").exists()]
+        named, changed = runs_to_do(planned, cfg.out_dir, _RESUME_KEYS + STUDY_KEYS, ignore=("logger.progress_bar",),
+                                    defaults=dataclasses.asdict(TaxiConfig()), overwrite=cfg.overwrite)
+        jobs = [d for _, d in named]
         print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else "")
               + (f" ({len(changed)} again with the new settings)" if changed else ""), flush=True)
         t0 = time.perf_counter()

@@ -19,7 +19,8 @@ from typing import Any, Callable, Iterable
 from torchrl_hybrid.utils.config import flatten_dict
 from torchrl_hybrid.utils.files import read_json, take_lock
 
-__all__ = ["STUDY_FILE", "Study", "open_study", "settings_diff", "changed_runs", "refuse_changed"]
+__all__ = ["STUDY_FILE", "Study", "open_study", "settings_diff", "changed_runs", "refuse_changed", "planned_run",
+           "runs_to_do"]
 
 #: what a study writes at the top of its folder: its kind (and nothing a run needs)
 STUDY_FILE = "study.json"
@@ -128,3 +129,31 @@ def refuse_changed(changed: dict[str, list[str]], out_dir: str | Path, overwrite
     raise ValueError(f"{len(changed)} run(s) in {out_dir} were made with other settings than asked now "
                      f"({shown}{more}); choose another out_dir, run with the same settings, or pass "
                      f"{overwrite_hint} to run them again with the new ones")
+
+
+def planned_run(name: str, out: Path, d: dict, make_config: Callable[[dict], Any]) -> tuple[str, Path, dict, dict]:
+    """``(name, run_dir, job dict, full config as a dict)`` of one run of a study; a misspelt
+    or out-of-range setting fails here, before any run has started, naming the run."""
+    import dataclasses
+
+    try:
+        full = make_config(d)
+        full.validate()
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name.rpartition('_s')[0]}: {err}") from None
+    return name, out, d, dataclasses.asdict(full)
+
+
+def runs_to_do(planned: list[tuple[str, Path, dict, dict]], out_dir: str | Path, keys: Iterable[str], *,
+               ignore: Iterable[str] = (), defaults: dict | None = None,
+               overwrite: bool = False) -> tuple[list[tuple[str, dict]], dict[str, list[str]]]:
+    """The runs of ``planned`` (from :func:`planned_run`) to start: those not finished, and
+    (with ``overwrite``) those made with other settings, whose job then says ``overwrite``;
+    without ``overwrite`` runs of other settings are refused (:func:`refuse_changed`).
+    Returns ``([(name, job)], changed)``."""
+    changed = changed_runs([(n, out, full) for n, out, _, full in planned], keys, ignore=ignore, defaults=defaults)
+    if not overwrite:
+        refuse_changed(changed, out_dir)
+    jobs = [(n, {**d, "overwrite": True} if n in changed else d) for n, out, d, _ in planned
+            if n in changed or not (out / "summary.json").exists()]
+    return jobs, changed
