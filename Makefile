@@ -7,13 +7,13 @@ ARGS ?=
 # pytest-xdist processes for `make test` (one torch thread each)
 TEST_WORKERS ?= 2
 
-.PHONY: run test test-cuda install clean
+.PHONY: run test lint test-cuda install clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e ".[test,tensorboard]"
+	$(PY) -m pip install -q -e ".[test,lint,tensorboard]"
 	touch $@
 
 install: $(VENV)/.installed
@@ -24,6 +24,12 @@ run: $(VENV)/.installed
 
 test: $(VENV)/.installed
 	$(PY) -m pytest -q -n $(TEST_WORKERS) tests
+
+# ruff (lint + format check) and mypy, as configured in pyproject.toml; `pre-commit install` runs them on commit
+lint: $(VENV)/.installed
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy
 
 # the whole suite with every run on the GPU (a machine with CUDA; the CI machine has none)
 test-cuda: $(VENV)/.installed

@@ -15,6 +15,7 @@ mean number of distinguishable action classes; writes ``--out`` (JSON) and ``--p
 ``--from results/atari/action_effect.json`` redraws a saved result without playing.
 A smoke run: ``--games Pong --states 3``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -69,10 +70,15 @@ def action_classes(game: str, states: int, seed: int = 0, frameskip: int = 4) ->
         step(actions[int(rng.integers(len(actions)))])
     c = np.array(counts)
     n = len(actions)
-    return {"game": game, "actions": n, "states": states,
-            "no_action_visible": float((c == 1).mean()), "all_distinct": float((c == n).mean()),
-            "mean_classes": float(c.mean()),
-            "classes_histogram": {int(k): int((c == k).sum()) for k in range(1, n + 1)}}
+    return {
+        "game": game,
+        "actions": n,
+        "states": states,
+        "no_action_visible": float((c == 1).mean()),
+        "all_distinct": float((c == n).mean()),
+        "mean_classes": float(c.mean()),
+        "classes_histogram": {int(k): int((c == k).sum()) for k in range(1, n + 1)},
+    }
 
 
 def plot(results: list[dict], path: str) -> None:
@@ -128,9 +134,13 @@ def main() -> None:
         results = [action_classes(g, args.states, args.seed) for g in args.games]
     print(f"{'game':>10} {'actions':>7} {'no action visible':>18} {'all distinct':>13} {'mean classes':>13}")
     for r in results:
-        print(f"{r['game']:>10} {r['actions']:7d} {r['no_action_visible']:18.1%} {r['all_distinct']:13.1%} "
-              f"{r['mean_classes']:13.2f}")
-    print(f"({results[0]['states']} states per game under random play; classes = distinct next screens among the actions)")
+        print(
+            f"{r['game']:>10} {r['actions']:7d} {r['no_action_visible']:18.1%} {r['all_distinct']:13.1%} "
+            f"{r['mean_classes']:13.2f}"
+        )
+    print(
+        f"({results[0]['states']} states per game under random play; classes = distinct next screens among the actions)"
+    )
     if args.out:
         with open(args.out, "w") as f:
             json.dump(results, f, indent=2)

@@ -8,6 +8,7 @@ each lost life (where Breakout needs FIRE to serve again). Action ids are the
 game's minimal action set (Breakout: 0 NOOP, 1 FIRE, 2 RIGHT, 3 LEFT). A smoke run:
 ``--steps 5``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,8 +59,10 @@ def main() -> None:
     torch.set_num_threads(1)
     for path in a.checkpoints:
         u = action_usage(path, a.steps)
-        print(f"{path}\n  overall:                        {u['overall']}\n"
-              f"  first 20 steps after a lost life: {u['after_life_lost']} ({u['after_samples']} samples)")
+        print(
+            f"{path}\n  overall:                        {u['overall']}\n"
+            f"  first 20 steps after a lost life: {u['after_life_lost']} ({u['after_samples']} samples)"
+        )
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ side by side in one run: milliseconds for the learner's forward + backward of a 
 Rounds alternate between the variants (plain, then each compile mode), after a warm-up
 that includes the compilation (its time is printed apart), and the median is reported.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -79,13 +80,17 @@ def main() -> None:
                 _sync(device)
                 times[name, part].append((time.perf_counter() - t) / args.reps * 1000)
     print(f"device {device}, {args.threads} CPU threads, torch {torch.__version__}, median of {args.rounds} rounds")
-    print(f"{'variant':>16} {'fwd+bwd 80 (ms)':>16} {'fwd 16 (ms)':>12} {'warm-up (s)':>12} {'ratio fwd+bwd':>14} "
-          f"{'ratio fwd':>10}")
+    print(
+        f"{'variant':>16} {'fwd+bwd 80 (ms)':>16} {'fwd 16 (ms)':>12} {'warm-up (s)':>12} {'ratio fwd+bwd':>14} "
+        f"{'ratio fwd':>10}"
+    )
     base = {part: statistics.median(times["plain", part]) for part in ("fwd_bwd", "fwd")}
     for name in encoders:
         m = {part: statistics.median(times[name, part]) for part in ("fwd_bwd", "fwd")}
-        print(f"{name:>16} {m['fwd_bwd']:16.2f} {m['fwd']:12.2f} {compile_s[name]:12.1f} "
-              f"{base['fwd_bwd'] / m['fwd_bwd']:13.2f}x {base['fwd'] / m['fwd']:9.2f}x")
+        print(
+            f"{name:>16} {m['fwd_bwd']:16.2f} {m['fwd']:12.2f} {compile_s[name]:12.1f} "
+            f"{base['fwd_bwd'] / m['fwd_bwd']:13.2f}x {base['fwd'] / m['fwd']:9.2f}x"
+        )
     print("ratio = plain time / this variant's time (above 1: faster than plain)")
 
 

@@ -11,6 +11,7 @@ RMSprop's per-parameter normaliser on the shared CNN is set by the larger terms.
 the sizes side by side; it does not by itself show that they slow learning (a run with a
 smaller ``loss.idm_action_coeff`` or its own inverse-model CNN would).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,8 +40,13 @@ def grad_norms(run_dir: Path, windows=WINDOWS) -> dict:
         means.append(sum(xs) / len(xs) if xs else math.nan)
     cfg = run_dir / "config.json"
     clip = json.loads(cfg.read_text()).get("optim", {}).get("max_grad_norm") if cfg.exists() else None
-    return {"run": run_dir.name, "key": key, "windows": [list(w) for w in windows], "mean_grad_norm": means,
-            "clip": clip}
+    return {
+        "run": run_dir.name,
+        "key": key,
+        "windows": [list(w) for w in windows],
+        "mean_grad_norm": means,
+        "clip": clip,
+    }
 
 
 def main() -> None:
@@ -66,8 +72,12 @@ def main() -> None:
         for d in runs[game]:
             r = grad_norms(d)
             result[game].append(r)
-            print(f"  {d.name:32s} " + "  ".join(f"{g:8.3f}" for g in r["mean_grad_norm"]) + f"   clip {r['clip']}"
-                  + ("" if r["key"] == "grad_norm" else f" ({r['key']}: per-group clip)"))
+            print(
+                f"  {d.name:32s} "
+                + "  ".join(f"{g:8.3f}" for g in r["mean_grad_norm"])
+                + f"   clip {r['clip']}"
+                + ("" if r["key"] == "grad_norm" else f" ({r['key']}: per-group clip)")
+            )
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2))
 

@@ -12,6 +12,7 @@ updates after the last full window); chance level is ln(n_actions) and
 1/n_actions. The runs are independent processes, ``--workers`` (2) at a time.
 A smoke run: ``--frames 640 --workers 1 --num-envs 2``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,8 +38,9 @@ def train(args: tuple) -> tuple[str, list[tuple[int, float, float]]]:
     if model == "mlp":
         loss = InverseDynamicsLoss(MLPInverseDynamics(enc, env.n_actions), action_coeff=1.0)
     else:
-        loss = DualInverseDynamicsLoss(DualInverseDynamics(enc, env.n_actions, rank=8), action_coeff=1.0,
-                                       embedding_coeff=emb)
+        loss = DualInverseDynamicsLoss(
+            DualInverseDynamics(enc, env.n_actions, rank=8), action_coeff=1.0, embedding_coeff=emb
+        )
     opt = torch.optim.RMSprop(loss.parameters(), lr=7e-4, eps=1e-5, alpha=0.99)
     steps = frames // 4
     collector = Collector(env, policy, frames_per_batch=80, total_frames=steps, auto_register_policy_transforms=False)
@@ -85,13 +87,18 @@ def main() -> None:
         p.error(f"--game {a.game}: {err}")
     n = env.n_actions
     env.close()
-    jobs = [(a.game, "dual", 0.1, a.frames, a.seed, a.num_envs), (a.game, "dual", 0.0, a.frames, a.seed, a.num_envs),
-            (a.game, "mlp", 0.0, a.frames, a.seed, a.num_envs)]
+    jobs = [
+        (a.game, "dual", 0.1, a.frames, a.seed, a.num_envs),
+        (a.game, "dual", 0.0, a.frames, a.seed, a.num_envs),
+        (a.game, "mlp", 0.0, a.frames, a.seed, a.num_envs),
+    ]
     t0 = time.perf_counter()
     with mp.get_context("spawn").Pool(a.workers) as pool:
         results = pool.map(train, jobs)
-    print(f"\n{a.game}: inverse model trained alone on the untrained policy's transitions "
-          f"(chance: loss {math.log(n):.3f}, accuracy {1 / n:.3f}); {time.perf_counter() - t0:.0f} s")
+    print(
+        f"\n{a.game}: inverse model trained alone on the untrained policy's transitions "
+        f"(chance: loss {math.log(n):.3f}, accuracy {1 / n:.3f}); {time.perf_counter() - t0:.0f} s"
+    )
     for name, rows in results:
         print(f"  {name}")
         for frames, loss, acc in rows:

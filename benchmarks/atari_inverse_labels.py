@@ -16,6 +16,7 @@ stands for (the columns of the true x label confusion matrix: look-alike actions
 label show up as one label taking several true actions). The figure draws the shares and the
 confusion matrix.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,7 +31,6 @@ from torchrl_hybrid.modules import AtariEncoder, make_atari_actor_critic
 from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.run import make_inverse_model
 
-
 CONFIDENCE_THRESHOLDS = (0.5, 0.6, 0.8, 0.9)
 
 
@@ -43,14 +43,23 @@ def load_hybrid(path: str | Path):
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # truncated, another format
-        raise ValueError(f"--model {path} is not a model.pt written by train_atari ({type(err).__name__}: {err})") from None
+        raise ValueError(
+            f"--model {path} is not a model.pt written by train_atari ({type(err).__name__}: {err})"
+        ) from None
     if not isinstance(ckpt, dict) or ckpt.get("inverse_model") is None or "n_actions" not in ckpt:
         raise ValueError(f"{path}: not the model.pt of an Atari run with an inverse model (a2c has none)")
     cfg = ckpt["config"]
     actor, _, encoder, _ = make_atari_actor_critic(ckpt["n_actions"])
     idm_encoder = AtariEncoder() if cfg.get("idm_encoder", "shared") == "own" else encoder  # as trained
-    idm = make_inverse_model(get_variant(cfg["variant"]).inverse_model, idm_encoder, ckpt["n_actions"],
-                             d_state=cfg["d_state"], d=cfg["d"], rank=cfg["rank"], mlp_layers=cfg.get("mlp_layers", 2))
+    idm = make_inverse_model(
+        get_variant(cfg["variant"]).inverse_model,
+        idm_encoder,
+        ckpt["n_actions"],
+        d_state=cfg["d_state"],
+        d=cfg["d"],
+        rank=cfg["rank"],
+        mlp_layers=cfg.get("mlp_layers", 2),
+    )
     actor.load_state_dict(ckpt["actor"])
     idm.load_state_dict(ckpt["inverse_model"])
     encoder.reuse_features = idm_encoder.reuse_features = False  # every call here is a new batch
@@ -68,7 +77,7 @@ def inverse_labels(model: str | Path, demos: str | Path, batch: int = 256) -> di
     n_actions = ckpt["n_actions"]
     labels, conf, greedy = [], [], []
     for i in range(0, len(pairs), batch):
-        part = pairs[i:i + batch]
+        part = pairs[i : i + batch]
         probs = idm.action_logits(part["observation"], part["next", "observation"]).softmax(-1)
         c, lab = probs.max(-1)
         labels.append(lab)
@@ -85,21 +94,32 @@ def inverse_labels(model: str | Path, demos: str | Path, batch: int = 256) -> di
     if len(names) != n_actions:
         raise ValueError(f"{model} has {n_actions} actions, {game}'s minimal action set {len(names)}")
     # confusion[t][l]: share of all pairs whose true action is t and whose label is l
-    confusion = torch.bincount(true * n_actions + labels, minlength=n_actions ** 2).float() / len(true)
+    confusion = torch.bincount(true * n_actions + labels, minlength=n_actions**2).float() / len(true)
     return {
-        "model": str(model), "demos": str(demos), "game": game,
-        "variant": ckpt["config"]["variant"], "pairs": len(pairs), "actions": n_actions, "action_names": names,
+        "model": str(model),
+        "demos": str(demos),
+        "game": game,
+        "variant": ckpt["config"]["variant"],
+        "pairs": len(pairs),
+        "actions": n_actions,
+        "action_names": names,
         "confusion": confusion.view(n_actions, n_actions).tolist(),
-        "share_true": share(true), "share_labels": share(labels), "share_agent_greedy": share(greedy),
+        "share_true": share(true),
+        "share_labels": share(labels),
+        "share_agent_greedy": share(greedy),
         "accuracy": float((labels == true).float().mean()),
         "labels_equal_agent_greedy": float((labels == greedy).float().mean()),
         "agent_greedy_equals_expert": float((greedy == true).float().mean()),
         "mean_confidence": float(conf.mean()),
         "majority_true_share": max(share(true)),
         # what loss.bc_confidence=t would keep: the share of pairs with max P_i >= t and their labels' accuracy
-        "confidence_gate": {str(t): {"kept": float((conf >= t).float().mean()),
-                                     "accuracy": float((labels == true)[conf >= t].float().mean()) if (conf >= t).any()
-                                     else None} for t in CONFIDENCE_THRESHOLDS},
+        "confidence_gate": {
+            str(t): {
+                "kept": float((conf >= t).float().mean()),
+                "accuracy": float((labels == true)[conf >= t].float().mean()) if (conf >= t).any() else None,
+            }
+            for t in CONFIDENCE_THRESHOLDS
+        },
     }
 
 
@@ -118,8 +138,11 @@ def plot(r: dict, path: str | Path) -> None:
     ax.bar(x + w, r["share_agent_greedy"], w, label="agent's greedy action at s")
     ax.set_xticks(x, names, rotation=45, ha="right", fontsize=8)
     ax.set_ylabel("share of the expert's pairs")
-    ax.set_title(f"{r['game']}, {r['variant']}: labels equal the agent's greedy action in "
-                 f"{r['labels_equal_agent_greedy']:.0%} of pairs", fontsize=9)
+    ax.set_title(
+        f"{r['game']}, {r['variant']}: labels equal the agent's greedy action in "
+        f"{r['labels_equal_agent_greedy']:.0%} of pairs",
+        fontsize=9,
+    )
     ax.legend(fontsize=8)
     if "confusion" in r:
         c = np.array(r["confusion"])
@@ -162,13 +185,20 @@ def main() -> None:
     for a in range(r["actions"]):
         col = [r["confusion"][t][a] for t in range(r["actions"])]
         # (only for labels given to at least 0.5 % of the pairs: a handful of pairs says nothing)
-        took = sorted(((c / sum(col), names[t]) for t, c in enumerate(col) if c > 0),
-                      reverse=True)[:4] if sum(col) >= 0.005 else []
-        print(f"{a:2d} {names[a]:>11} {r['share_true'][a]:7.1%} {r['share_labels'][a]:7.1%} "
-              f"{r['share_agent_greedy'][a]:7.1%}   " + ", ".join(f"{t} {c:.0%}" for c, t in took))
-    print(f"label accuracy {r['accuracy']:.1%} (the most frequent true action: {r['majority_true_share']:.1%}); "
-          f"label = agent's greedy action in {r['labels_equal_agent_greedy']:.1%}; agent's greedy action = expert's "
-          f"in {r['agent_greedy_equals_expert']:.1%}; mean confidence {r['mean_confidence']:.2f}")
+        took = (
+            sorted(((c / sum(col), names[t]) for t, c in enumerate(col) if c > 0), reverse=True)[:4]
+            if sum(col) >= 0.005
+            else []
+        )
+        print(
+            f"{a:2d} {names[a]:>11} {r['share_true'][a]:7.1%} {r['share_labels'][a]:7.1%} "
+            f"{r['share_agent_greedy'][a]:7.1%}   " + ", ".join(f"{t} {c:.0%}" for c, t in took)
+        )
+    print(
+        f"label accuracy {r['accuracy']:.1%} (the most frequent true action: {r['majority_true_share']:.1%}); "
+        f"label = agent's greedy action in {r['labels_equal_agent_greedy']:.1%}; agent's greedy action = expert's "
+        f"in {r['agent_greedy_equals_expert']:.1%}; mean confidence {r['mean_confidence']:.2f}"
+    )
     for t, g in r["confidence_gate"].items():
         acc = "-" if g["accuracy"] is None else f"{g['accuracy']:.1%}"
         print(f"  loss.bc_confidence={t}: keeps {g['kept']:.1%} of the pairs, their labels' accuracy {acc}")

@@ -11,6 +11,7 @@ milliseconds per batch of 16 envs (``--num-envs``) x 5 steps = 80 agent steps fo
 the same envs with no learner, and the bare CNN (no-grad forward of 16 frame
 stacks, forward + backward of 80).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,11 +40,20 @@ def _timed(fn, timers, name, cuda: bool = False):
             if cuda:
                 torch.cuda.synchronize()
             timers[name] += time.perf_counter() - t
+
     return wrapper
 
 
-def profile_run(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int,
-                device: str = "cpu", num_envs: int = 16) -> dict:
+def profile_run(
+    variant: str,
+    game: str,
+    steps: int,
+    out: Path,
+    demos: Path | None,
+    threads: int,
+    device: str = "cpu",
+    num_envs: int = 16,
+) -> dict:
     from torchrl_hybrid.trainers.atari import build_atari
 
     run = build_atari(bench_config(variant, game, steps, out, demos, threads, device=device, num_envs=num_envs))
@@ -86,13 +96,23 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:  # scratch: the runs, the demos
         tmp = Path(tmp)
         demos = bench_demos(a.game, tmp, a.num_envs)
-        runs = {"a2c": profile_run("a2c", a.game, a.steps, tmp, None, a.threads, device, a.num_envs),
-                "hybrid_dual": profile_run("hybrid_dual", a.game, a.steps, tmp, demos, a.threads, device, a.num_envs)}
+        runs = {
+            "a2c": profile_run("a2c", a.game, a.steps, tmp, None, a.threads, device, a.num_envs),
+            "hybrid_dual": profile_run("hybrid_dual", a.game, a.steps, tmp, demos, a.threads, device, a.num_envs),
+        }
     fl = floors(a.game, a.threads, device, a.num_envs, channels_last_too=True)
-    print(f"\n{a.game}: milliseconds per batch of {batch} agent steps ({a.num_envs} envs x 5), {a.steps:,} steps "
-          f"a run, learner on {device}")
-    keys = ["collection (rollout) in all", "env: ale-py step (send + recv)", "policy: CNN + heads + sampling",
-            "loss forward (A2C + IDM + BC)", "backward", "RMSprop step"]
+    print(
+        f"\n{a.game}: milliseconds per batch of {batch} agent steps ({a.num_envs} envs x 5), {a.steps:,} steps "
+        f"a run, learner on {device}"
+    )
+    keys = [
+        "collection (rollout) in all",
+        "env: ale-py step (send + recv)",
+        "policy: CNN + heads + sampling",
+        "loss forward (A2C + IDM + BC)",
+        "backward",
+        "RMSprop step",
+    ]
     print(f"  {'':34s} {'a2c':>8s} {'hybrid_dual':>12s}")
     for k in keys:
         label = ("  - " if k.startswith(("env", "policy")) else "") + k
@@ -100,10 +120,14 @@ def main() -> None:
     for name in ("a2c", "hybrid_dual"):
         r = runs[name]
         r["rest"] = r["total"] - sum(r.get(k, 0) for k in keys if not k.startswith(("env", "policy")))
-    print(f"  {'rest (trainer, hooks, clip, demos)':34s} {runs['a2c']['rest']:8.1f} {runs['hybrid_dual']['rest']:12.1f}")
+    print(
+        f"  {'rest (trainer, hooks, clip, demos)':34s} {runs['a2c']['rest']:8.1f} {runs['hybrid_dual']['rest']:12.1f}"
+    )
     print(f"  {'total':34s} {runs['a2c']['total']:8.1f} {runs['hybrid_dual']['total']:12.1f}")
-    print(f"  {'= agent steps/s':34s} {1000 * batch / runs['a2c']['total']:8.0f} "
-          f"{1000 * batch / runs['hybrid_dual']['total']:12.0f}")
+    print(
+        f"  {'= agent steps/s':34s} {1000 * batch / runs['a2c']['total']:8.0f} "
+        f"{1000 * batch / runs['hybrid_dual']['total']:12.0f}"
+    )
     print("floors (same machine, same run):")
     for k, v in fl.items():
         print(f"  {k:34s} {v:8.1f} ms")

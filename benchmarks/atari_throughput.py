@@ -20,6 +20,7 @@ envs' frames per step, forward + backward of a batch), summed per batch.
 Setup (env creation, demo recording) is not timed, nor is the inverse model's
 accuracy column (a logging diagnostic, ``logger.accuracy_pairs=0``: off).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,18 +34,39 @@ import torch
 logging.getLogger("torchrl").setLevel(logging.WARNING)
 
 
-def bench_config(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int, *,
-                 device: str = "cpu", num_envs: int = 16, collector: dict | None = None):
+def bench_config(
+    variant: str,
+    game: str,
+    steps: int,
+    out: Path,
+    demos: Path | None,
+    threads: int,
+    *,
+    device: str = "cpu",
+    num_envs: int = 16,
+    collector: dict | None = None,
+):
     """The measured run: BC on from the start, no logging, diagnostics or checkpoints."""
     from torchrl_hybrid.trainers.atari import atari_config
 
-    cfg = {"variant": variant, "total_frames": 4 * steps, "out_dir": str(out / variant), "threads": threads,
-           "overwrite": True,  # a scratch folder, measured again by --all
-           "device": device, "env": {"game": game, "num_envs": num_envs, "num_threads": threads},
-           "collector": collector or {},
-           "loss": {"bc_start_frames": 0},
-           "logger": {"progress_bar": False, "checkpoint": False, "backend": "none", "log_every_frames": 10**9,
-                      "accuracy_pairs": 0}}
+    cfg = {
+        "variant": variant,
+        "total_frames": 4 * steps,
+        "out_dir": str(out / variant),
+        "threads": threads,
+        "overwrite": True,  # a scratch folder, measured again by --all
+        "device": device,
+        "env": {"game": game, "num_envs": num_envs, "num_threads": threads},
+        "collector": collector or {},
+        "loss": {"bc_start_frames": 0},
+        "logger": {
+            "progress_bar": False,
+            "checkpoint": False,
+            "backend": "none",
+            "log_every_frames": 10**9,
+            "accuracy_pairs": 0,
+        },
+    }
     if demos is not None:
         cfg["demo"] = {"path": str(demos)}
     return atari_config(cfg)
@@ -55,11 +77,27 @@ def bench_demos(game: str, tmp: Path, num_envs: int = 16) -> Path:
     ``num_envs``: the untrained expert's envs, at most 16)."""
     from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari
 
-    train_atari(atari_config({"variant": "a2c", "total_frames": 320, "out_dir": str(tmp / "expert"), "device": "cpu",
-                              "env": {"game": game, "num_envs": min(num_envs, 16)},
-                              "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}))
-    record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=8, num_envs=8, max_steps=200,
-                 progress=False, device="cpu")
+    train_atari(
+        atari_config(
+            {
+                "variant": "a2c",
+                "total_frames": 320,
+                "out_dir": str(tmp / "expert"),
+                "device": "cpu",
+                "env": {"game": game, "num_envs": min(num_envs, 16)},
+                "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"},
+            }
+        )
+    )
+    record_demos(
+        tmp / "expert" / "model.pt",
+        tmp / "demos",
+        num_trajectories=8,
+        num_envs=8,
+        max_steps=200,
+        progress=False,
+        device="cpu",
+    )
     return tmp / "demos"
 
 
@@ -90,8 +128,9 @@ def sb3(game: str, steps: int, threads: int, device: str, num_envs: int) -> floa
     return steps / (time.perf_counter() - t0)
 
 
-def floors(game: str, threads: int, device: str, num_envs: int, n_steps: int = 5,
-           channels_last_too: bool = False) -> dict[str, float]:
+def floors(
+    game: str, threads: int, device: str, num_envs: int, n_steps: int = 5, channels_last_too: bool = False
+) -> dict[str, float]:
     """Milliseconds per batch (``num_envs`` x ``n_steps`` agent steps) of ale-py alone
     and of the bare CNN passes the learner cannot avoid (``channels_last_too``: also
     the forward + backward pass with contiguous, not channels-last, convolutions)."""
@@ -101,8 +140,19 @@ def floors(game: str, threads: int, device: str, num_envs: int, n_steps: int = 5
     from torchrl_hybrid.modules import AtariEncoder
 
     torch.set_num_threads(threads)
-    env = AtariVectorEnv(_rom_name(game), num_envs, num_threads=threads, autoreset_mode="SameStep", noop_max=30,
-                         frameskip=4, stack_num=4, img_height=84, img_width=84, grayscale=True, maxpool=True)
+    env = AtariVectorEnv(
+        _rom_name(game),
+        num_envs,
+        num_threads=threads,
+        autoreset_mode="SameStep",
+        noop_max=30,
+        frameskip=4,
+        stack_num=4,
+        img_height=84,
+        img_width=84,
+        grayscale=True,
+        maxpool=True,
+    )
     env.reset(seed=0)
     n = env.single_action_space.n
     t = time.perf_counter()
@@ -135,10 +185,14 @@ def floors(game: str, threads: int, device: str, num_envs: int, n_steps: int = 5
         def f():
             e.zero_grad()
             e(x_batch).sum().backward()
+
         return f
 
-    out = {"ale-py alone (random actions)": ale, f"CNN no-grad forward of {num_envs}, x{n_steps}": n_steps * fwd,
-           f"CNN forward + backward of {num_envs * n_steps}": bench(train(enc), 20)}
+    out = {
+        "ale-py alone (random actions)": ale,
+        f"CNN no-grad forward of {num_envs}, x{n_steps}": n_steps * fwd,
+        f"CNN forward + backward of {num_envs * n_steps}": bench(train(enc), 20),
+    }
     if channels_last_too:
         plain = AtariEncoder(channels_last=False).to(dev)
         plain.reuse_features = False
@@ -179,20 +233,32 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:  # scratch: the runs, the demos
         tmp = Path(tmp)
         demos = bench_demos(a.game, tmp, a.num_envs)
-        rows = [("ours: a2c", ours("a2c", a.game, a.steps, tmp, None, a.threads, **kw)),
-                ("ours: hybrid_dual", ours("hybrid_dual", a.game, a.steps, tmp, demos, a.threads, **kw))]
+        rows = [
+            ("ours: a2c", ours("a2c", a.game, a.steps, tmp, None, a.threads, **kw)),
+            ("ours: hybrid_dual", ours("hybrid_dual", a.game, a.steps, tmp, demos, a.threads, **kw)),
+        ]
         if a.all:
-            rows.append(("ours: a2c, TorchRL Collector", ours("a2c", a.game, a.steps, tmp, None, a.threads, **kw,
-                                                             collector={"backend": "torchrl"})))
-            rows.append(("ours: a2c, 2 env groups", ours("a2c", a.game, a.steps, tmp, None, a.threads, **kw,
-                                                        collector={"env_groups": 2})))
+            rows.append(
+                (
+                    "ours: a2c, TorchRL Collector",
+                    ours("a2c", a.game, a.steps, tmp, None, a.threads, **kw, collector={"backend": "torchrl"}),
+                )
+            )
+            rows.append(
+                (
+                    "ours: a2c, 2 env groups",
+                    ours("a2c", a.game, a.steps, tmp, None, a.threads, **kw, collector={"env_groups": 2}),
+                )
+            )
     base = None if a.no_sb3 else sb3(a.game, a.steps, a.threads, device, a.num_envs)
     if base is not None:
         rows.append((f"Stable-Baselines3 A2C ({device})", base))
     fl = floors(a.game, a.threads, device, a.num_envs)
     floor_ms = sum(fl.values())  # ALE + collection forward + learner forward/backward
-    print(f"\n{a.game}, {a.num_envs} envs x 5 steps a batch, {a.steps:,} agent steps each, {a.threads} threads, "
-          f"learner on {device}")
+    print(
+        f"\n{a.game}, {a.num_envs} envs x 5 steps a batch, {a.steps:,} agent steps each, {a.threads} threads, "
+        f"learner on {device}"
+    )
     for name, v in rows:
         print(f"  {name:34s} {v:8,.0f} agent steps/s  {4 * v:9,.0f} game frames/s")
     if base is not None:

@@ -8,6 +8,7 @@ training (the learner's own time is not included).
     python benchmarks/collectors.py --envs CartPole-v1 --workers 1 2 --batches 100
     python benchmarks/collectors.py --envs Taxi-v4 --workers 1 --batches 2 --num-envs 2 --no-ray   # a smoke run
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,12 +28,19 @@ def measure(env_id: str, kind: str, workers: int, batches: int, num_envs: int) -
 
     obs, size, n_actions = observation_kind(env_id)
     n_steps = 2 if obs == "discrete" else 5
-    cfg = config_from_dict({"env": {"env_id": env_id, "num_envs": num_envs,
-                                    "max_episode_steps": 50 if obs == "discrete" else 500},
-                            "loss": {"n_steps": n_steps}, "total_frames": num_envs * n_steps * (batches + 5),
-                            "collector": {"kind": kind, "workers": workers}})
-    actor = (make_tabular_actor_critic(size, n_actions)[0] if obs == "discrete"
-             else make_mlp_actor_critic(size, n_actions)[0])
+    cfg = config_from_dict(
+        {
+            "env": {"env_id": env_id, "num_envs": num_envs, "max_episode_steps": 50 if obs == "discrete" else 500},
+            "loss": {"n_steps": n_steps},
+            "total_frames": num_envs * n_steps * (batches + 5),
+            "collector": {"kind": kind, "workers": workers},
+        }
+    )
+    actor = (
+        make_tabular_actor_critic(size, n_actions)[0]
+        if obs == "discrete"
+        else make_mlp_actor_critic(size, n_actions)[0]
+    )
     env = make_toy_text_env(env_id, num_envs, max_episode_steps=cfg.env.max_episode_steps, seed=0)
     collector = make_collector(cfg, env, actor, torch.device("cpu"))
     frames, t0 = 0, None
@@ -63,8 +71,7 @@ def main() -> None:
     if bad:
         ap.error(f"--workers {bad}: each must be >= 1 and divide --num-envs {args.num_envs}")
     if not args.no_ray and importlib.util.find_spec("ray") is None:
-        ap.error("RayCollector needs Ray (pip install 'ray>=2.9', or the project's [ray] extra); "
-                 "or pass --no-ray")
+        ap.error("RayCollector needs Ray (pip install 'ray>=2.9', or the project's [ray] extra); or pass --no-ray")
     from torchrl_hybrid.envs import observation_kind
 
     for env_id in args.envs:
@@ -76,6 +83,7 @@ def main() -> None:
     kinds = ["multi_sync"] + ([] if args.no_ray else ["ray"])
     if not args.no_ray:
         from torchrl_hybrid.utils.launch import init_ray
+
         init_ray(num_cpus=max(args.workers))
     for env_id in args.envs:
         single = measure(env_id, "single", 1, args.batches, args.num_envs)

@@ -5,6 +5,7 @@ cluster, side by side in one run (the runs, seeds and settings are identical).
     python benchmarks/launchers.py --workers 1 2
     python benchmarks/launchers.py --seeds 1 --frames 32 --workers 1 --eval-episodes 1   # a smoke run
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,8 +25,13 @@ def main() -> None:
     ap.add_argument("--workers", type=int, nargs="+", default=[2])
     ap.add_argument("--eval-episodes", type=int, default=16, help="greedy episodes of each evaluation")
     args = ap.parse_args()
-    base = {"logger": {"log_every_frames": 4000, "eval_episodes": args.eval_episodes,
-                       "final_eval_episodes": args.eval_episodes}}
+    base = {
+        "logger": {
+            "log_every_frames": 4000,
+            "eval_episodes": args.eval_episodes,
+            "final_eval_episodes": args.eval_episodes,
+        }
+    }
     # refuse what would fail only inside the sweep
     if args.seeds < 1:
         ap.error(f"--seeds must be >= 1, got {args.seeds}")
@@ -37,23 +43,31 @@ def main() -> None:
 
     try:
         for over in configurations(args.groups).values():
-            config_from_dict(merge_dicts(merge_dicts({"total_frames": args.frames, **base}, over),
-                                         {"out_dir": "unused"})).validate()
+            config_from_dict(
+                merge_dicts(merge_dicts({"total_frames": args.frames, **base}, over), {"out_dir": "unused"})
+            ).validate()
     except ValueError as err:
         ap.error(str(err))
     rows = []
     for workers in args.workers:
         for launcher in ("local", "ray"):
             with tempfile.TemporaryDirectory() as out:
-                cfg = SweepConfig(groups=tuple(args.groups), seeds=args.seeds, total_frames=args.frames,
-                                  out_dir=out, workers=workers, launcher=launcher, base=base)
+                cfg = SweepConfig(
+                    groups=tuple(args.groups),
+                    seeds=args.seeds,
+                    total_frames=args.frames,
+                    out_dir=out,
+                    workers=workers,
+                    launcher=launcher,
+                    base=base,
+                )
                 t0 = time.perf_counter()
                 run_sweep(cfg, show_progress=False)
                 rows.append((launcher, workers, time.perf_counter() - t0))
             print(f"{launcher:5s} workers {workers}: {rows[-1][2]:.1f} s", flush=True)
     print("\nlauncher  workers  wall time  vs local")
     for launcher, workers, secs in rows:
-        local = next(s for l, w, s in rows if l == "local" and w == workers)
+        local = next(s for name, w, s in rows if name == "local" and w == workers)
         print(f"{launcher:8s}  {workers:7d}  {secs:8.1f} s  {secs / local:6.2f}x")
 
 

@@ -9,6 +9,7 @@ Prints per path the mean ± std over seeds of the area under the greedy-return
 curve (mean over logged points), the final greedy return and the frames to 95 %
 of the optimum, with a permutation-test p-value for the difference of means.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,9 +30,16 @@ def run_config(variant: str, seed: int, frames: int, out_dir: str, logger: dict 
     """One seed's run (both paths train from the same settings)."""
     from torchrl_hybrid.trainers.taxi import config_from_dict
 
-    return config_from_dict({"variant": variant, "seed": seed, "total_frames": frames, "device": "cpu",
-                             "out_dir": out_dir, "logger": {"progress_bar": False, "backend": "none",
-                                                            "checkpoint": False, **(logger or {})}})
+    return config_from_dict(
+        {
+            "variant": variant,
+            "seed": seed,
+            "total_frames": frames,
+            "device": "cpu",
+            "out_dir": out_dir,
+            "logger": {"progress_bar": False, "backend": "none", "checkpoint": False, **(logger or {})},
+        }
+    )
 
 
 def compare(variant: str, seeds: int, frames: int, workers_note: str = "", logger: dict | None = None) -> dict:
@@ -73,14 +81,23 @@ def _compare(variant: str, seeds: int, frames: int, root: str, logger: dict | No
     t_batched = time.perf_counter() - t0
     A = stats(torchrl_curves, torchrl_final)
     B = stats([b["curve"] for b in batched], [b["final_return"] for b in batched])
-    result = {"variant": variant, "seeds": seeds, "frames": frames,
-              "time_torchrl_s": round(t_torchrl, 1), "time_batched_s": round(t_batched, 1)}
+    result = {
+        "variant": variant,
+        "seeds": seeds,
+        "frames": frames,
+        "time_torchrl_s": round(t_torchrl, 1),
+        "time_batched_s": round(t_batched, 1),
+    }
     for k in ("auc", "final"):
-        result[k] = {"torchrl": [float(A[k].mean()), float(A[k].std())],
-                     "batched": [float(B[k].mean()), float(B[k].std())],
-                     "p_value": permutation_p(A[k], B[k])}
-    result["reached_95pct"] = {"torchrl": int((~np.isnan(A["reach"])).sum()),
-                               "batched": int((~np.isnan(B["reach"])).sum())}
+        result[k] = {
+            "torchrl": [float(A[k].mean()), float(A[k].std())],
+            "batched": [float(B[k].mean()), float(B[k].std())],
+            "p_value": permutation_p(A[k], B[k]),
+        }
+    result["reached_95pct"] = {
+        "torchrl": int((~np.isnan(A["reach"])).sum()),
+        "batched": int((~np.isnan(B["reach"])).sum()),
+    }
     return result
 
 
@@ -89,16 +106,21 @@ def main():
     p.add_argument("--variant", default="hybrid_dual")
     p.add_argument("--seeds", type=int, default=8)
     p.add_argument("--frames", type=int, default=80_000)
-    p.add_argument("--eval-episodes", type=int, default=None,
-                   help="greedy episodes of each evaluation (default: the runs' own, logger.eval_episodes and "
-                        "logger.final_eval_episodes)")
+    p.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=None,
+        help="greedy episodes of each evaluation (default: the runs' own, logger.eval_episodes and "
+        "logger.final_eval_episodes)",
+    )
     p.add_argument("--json", help="also write the result here")
     a = p.parse_args()
     # refuse what would fail only after the training
     if a.seeds < 2:
         p.error(f"--seeds {a.seeds}: the permutation test compares the two paths over seeds, it needs >= 2")
-    logger = None if a.eval_episodes is None else {"eval_episodes": a.eval_episodes,
-                                                   "final_eval_episodes": a.eval_episodes}
+    logger = (
+        None if a.eval_episodes is None else {"eval_episodes": a.eval_episodes, "final_eval_episodes": a.eval_episodes}
+    )
     try:
         run_config(a.variant, 0, a.frames, "unused", logger).validate()
     except ValueError as err:
@@ -106,14 +128,20 @@ def main():
     if a.json and not os.path.isdir(os.path.dirname(os.path.abspath(a.json))):
         p.error(f"--json {a.json}: its folder does not exist")
     r = compare(a.variant, a.seeds, a.frames, logger=logger)
-    print(f"{r['variant']}, {r['seeds']} seeds x {r['frames']:,} frames "
-          f"(TorchRL path {r['time_torchrl_s']} s, batched {r['time_batched_s']} s)")
+    print(
+        f"{r['variant']}, {r['seeds']} seeds x {r['frames']:,} frames "
+        f"(TorchRL path {r['time_torchrl_s']} s, batched {r['time_batched_s']} s)"
+    )
     for k in ("auc", "final"):
         t, b = r[k]["torchrl"], r[k]["batched"]
-        print(f"  {k:5s}  TorchRL {t[0]:7.2f} ± {t[1]:5.2f}   batched {b[0]:7.2f} ± {b[1]:5.2f}   "
-              f"permutation p = {r[k]['p_value']:.3f}")
-    print(f"  seeds reaching 95 % of optimal: TorchRL {r['reached_95pct']['torchrl']}, "
-          f"batched {r['reached_95pct']['batched']}")
+        print(
+            f"  {k:5s}  TorchRL {t[0]:7.2f} ± {t[1]:5.2f}   batched {b[0]:7.2f} ± {b[1]:5.2f}   "
+            f"permutation p = {r[k]['p_value']:.3f}"
+        )
+    print(
+        f"  seeds reaching 95 % of optimal: TorchRL {r['reached_95pct']['torchrl']}, "
+        f"batched {r['reached_95pct']['batched']}"
+    )
     if a.json:
         with open(a.json, "w") as f:
             json.dump(r, f, indent=2)

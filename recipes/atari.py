@@ -7,6 +7,7 @@
 Options: recipes/config/atari.yaml, whose schema (every setting, its default and what it does)
 is AtariConfig in torchrl_hybrid/trainers/atari.py; `--cfg job` prints them all.
 """
+
 from __future__ import annotations
 
 import sys
@@ -32,11 +33,16 @@ def run(cfg: DictConfig, **overrides) -> None:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
-    print(f"\n{summary['game']} {summary['variant']} seed {summary['seed']}: last mean episode score "
-          f"{summary['final_return']}, {summary['frames']} frames at {summary['frames_per_s']:.0f} frames/s"
-          + (f"\nevaluation: mean score {summary['eval_return']:.1f} over {summary['evaluation']['episodes']} episodes"
-             if summary.get("eval_return") is not None else "")
-          + f"\nplot: {raw['out_dir']}/learning_curve.png   curve: {raw['out_dir']}/metrics.csv")
+    print(
+        f"\n{summary['game']} {summary['variant']} seed {summary['seed']}: last mean episode score "
+        f"{summary['final_return']}, {summary['frames']} frames at {summary['frames_per_s']:.0f} frames/s"
+        + (
+            f"\nevaluation: mean score {summary['eval_return']:.1f} over {summary['evaluation']['episodes']} episodes"
+            if summary.get("eval_return") is not None
+            else ""
+        )
+        + f"\nplot: {raw['out_dir']}/learning_curve.png   curve: {raw['out_dir']}/metrics.csv"
+    )
 
 
 @hydra.main(config_path="config", config_name="atari", version_base=None)

@@ -9,6 +9,7 @@ option's measured effect where it has one (``out_dir/effects.png``).
 
 Options: recipes/config/atari_compare.yaml.
 """
+
 from __future__ import annotations
 
 import sys
@@ -31,8 +32,10 @@ def main(cfg: DictConfig) -> None:
     except (ValueError, TypeError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
-    print(f"\nresults: {raw['out_dir']}/<game>/comparison.png, curves.csv, summary.csv, summary.md; "
-          f"{raw['out_dir']}/overview.png (every game), effects.png (each option's effect, where measured)")
+    print(
+        f"\nresults: {raw['out_dir']}/<game>/comparison.png, curves.csv, summary.csv, summary.md; "
+        f"{raw['out_dir']}/overview.png (every game), effects.png (each option's effect, where measured)"
+    )
 
 
 if __name__ == "__main__":

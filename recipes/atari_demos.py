@@ -1,7 +1,8 @@
 """Play an Atari expert and record state-only trajectories as a dataset.
 
-    python recipes/atari_demos.py expert=experts/pong/model.pt out=demos/pong num_trajectories=100
+python recipes/atari_demos.py expert=experts/pong/model.pt out=demos/pong num_trajectories=100
 """
+
 from __future__ import annotations
 
 import sys
@@ -18,10 +19,19 @@ from torchrl_hybrid.utils.process import configure_process
 def main(cfg: DictConfig) -> None:
     configure_process(None)
     try:
-        meta = record_demos(cfg.expert, cfg.out, num_trajectories=cfg.num_trajectories, num_envs=cfg.num_envs,
-                            seed=cfg.seed, deterministic=cfg.deterministic, max_steps=cfg.max_steps,
-                            cut=cfg.cut, progress=cfg.progress, device=cfg.device,
-                            overwrite=cfg.overwrite)
+        meta = record_demos(
+            cfg.expert,
+            cfg.out,
+            num_trajectories=cfg.num_trajectories,
+            num_envs=cfg.num_envs,
+            seed=cfg.seed,
+            deterministic=cfg.deterministic,
+            max_steps=cfg.max_steps,
+            cut=cfg.cut,
+            progress=cfg.progress,
+            device=cfg.device,
+            overwrite=cfg.overwrite,
+        )
     except MissingMandatoryValue as err:
         print(f"error: {err.full_key}=... is required (see recipes/config/atari_demos.yaml)", file=sys.stderr)
         sys.exit(2)
@@ -29,8 +39,10 @@ def main(cfg: DictConfig) -> None:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
     n = meta["num_trajectories"]
-    print(f"\n{n} {meta['game']} trajectories, {sum(meta['lengths'])} pairs, mean score "
-          f"{sum(meta['returns']) / n:.1f}, saved to {cfg.out}")
+    print(
+        f"\n{n} {meta['game']} trajectories, {sum(meta['lengths'])} pairs, mean score "
+        f"{sum(meta['returns']) / n:.1f}, saved to {cfg.out}"
+    )
 
 
 if __name__ == "__main__":

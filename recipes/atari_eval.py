@@ -4,6 +4,7 @@
 
 Writes eval.json beside the checkpoint (or to ``out``). Options: recipes/config/atari_eval.yaml.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,8 +25,16 @@ def main(cfg: DictConfig) -> None:
     try:
         actor, ckpt = load_expert(cfg.checkpoint, cfg.device)
         game = ckpt["config"]["env"]["game"]
-        result = evaluate_atari(actor, game, ckpt["preprocessing"], episodes=cfg.episodes, num_envs=cfg.num_envs,
-                                seed=cfg.seed, deterministic=cfg.deterministic, progress=cfg.progress)
+        result = evaluate_atari(
+            actor,
+            game,
+            ckpt["preprocessing"],
+            episodes=cfg.episodes,
+            num_envs=cfg.num_envs,
+            seed=cfg.seed,
+            deterministic=cfg.deterministic,
+            progress=cfg.progress,
+        )
     except MissingMandatoryValue as err:
         print(f"error: {err.full_key}=... is required (see recipes/config/atari_eval.yaml)", file=sys.stderr)
         sys.exit(2)
@@ -35,8 +44,10 @@ def main(cfg: DictConfig) -> None:
     result.update(game=game, checkpoint=str(cfg.checkpoint), seed=cfg.seed)
     out = Path(cfg.out) if cfg.out else Path(cfg.checkpoint).with_name("eval.json")
     out.write_text(json.dumps(result, indent=2))
-    print(f"\n{game}: mean score {result['mean']:.1f} ± {result['std'] or 0:.1f} over {result['episodes']} episodes "
-          f"({'greedy' if cfg.deterministic else 'sampled'} actions); {out}")
+    print(
+        f"\n{game}: mean score {result['mean']:.1f} ± {result['std'] or 0:.1f} over {result['episodes']} episodes "
+        f"({'greedy' if cfg.deterministic else 'sampled'} actions); {out}"
+    )
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ one resumes from its checkpoint. Runs in ``out_dir`` made with other settings ar
 each difference named (``overwrite=true`` runs them again with the new settings); a folder
 that holds something other than a comparison is refused.
 """
+
 from __future__ import annotations
 
 import sys

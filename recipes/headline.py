@@ -7,6 +7,7 @@ hybrid, the best arm with inferred labels, the oracle; the issue's two goals per
 Reads each comparison's summary.json (recipes/compare.py writes it) and rewrites the block
 between <!-- headline:start --> and <!-- headline:end --> in README.md.
 """
+
 from __future__ import annotations
 
 import os
@@ -16,9 +17,14 @@ from pathlib import Path
 from torchrl_hybrid.experiments.headline import headline_markdown, headline_rows, update_readme_block
 
 ROOT = Path(__file__).resolve().parents[1]
-STUDIES = {"CartPole-v1": "results/cartpole/compare", "Acrobot-v1": "results/acrobot/compare",
-           "MountainCar-v0": "results/mountaincar/compare", "LunarLander-v3": "results/lunarlander/compare",
-           "Taxi-v4": "results/taxi_compare", "FrozenLake 8x8": "results/frozenlake_8x8/compare"}
+STUDIES = {
+    "CartPole-v1": "results/cartpole/compare",
+    "Acrobot-v1": "results/acrobot/compare",
+    "MountainCar-v0": "results/mountaincar/compare",
+    "LunarLander-v3": "results/lunarlander/compare",
+    "Taxi-v4": "results/taxi_compare",
+    "FrozenLake 8x8": "results/frozenlake_8x8/compare",
+}
 
 
 def main(argv: list[str]) -> None:
@@ -31,9 +37,12 @@ def main(argv: list[str]) -> None:
     missing = [k for k in studies if k not in present]
     table = headline_markdown(headline_rows(present))
     if missing:
-        table += ("\n\nNo comparison of this form yet (5 seeds with the oracle arm): " + ", ".join(missing)
-                  + ". Taxi's and FrozenLake's hybrid-vs-A2C results are the sweeps in results/taxi and "
-                  "results/frozenlake_8x8.")
+        table += (
+            "\n\nNo comparison of this form yet (5 seeds with the oracle arm): "
+            + ", ".join(missing)
+            + ". Taxi's and FrozenLake's hybrid-vs-A2C results are the sweeps in results/taxi and "
+            "results/frozenlake_8x8."
+        )
     print(table)
     if not argv:
         update_readme_block(ROOT / "README.md", table)

@@ -9,6 +9,7 @@ torchrl_hybrid/trainers/taxi.py; `--cfg job` prints them all). Writes metrics.cs
 summary.json, learning_curve.png, model.pt, config.json and a TorchRL checkpoint/ folder
 into ``out_dir`` (``resume=true`` continues it, ``overwrite=true`` replaces it).
 """
+
 from __future__ import annotations
 
 import sys
@@ -28,7 +29,9 @@ def run(cfg: DictConfig) -> None:
     raw = OmegaConf.to_container(cfg, resolve=True)
     raw.pop("hydra", None)
     try:
-        config = config_from_dict(raw).validate()  # every setting checked before out_dir is touched (also engine=batched)
+        config = config_from_dict(
+            raw
+        ).validate()  # every setting checked before out_dir is touched (also engine=batched)
         configure_process(config.threads)
         if config.engine == "batched":
             from torchrl_hybrid.trainers.batched import train_taxi_batched
@@ -46,8 +49,11 @@ def run(cfg: DictConfig) -> None:
         f"\n{summary['variant']} seed {summary['seed']}: final greedy return "
         f"{summary['final_return']:.2f} over {summary['final_eval_episodes']} episodes"
         + (f" (expert {summary['optimal_return']:.2f})" if summary["optimal_return"] is not None else "")
-        + (f", inverse-model accuracy on the demos {summary['idm_accuracy_expert']:.1%}"
-           if summary["idm_accuracy_expert"] is not None else "")
+        + (
+            f", inverse-model accuracy on the demos {summary['idm_accuracy_expert']:.1%}"
+            if summary["idm_accuracy_expert"] is not None
+            else ""
+        )
         + f"\n{summary['frames']} frames in {summary['train_time_s']:.0f} s ({summary['frames_per_s']:.0f} frames/s)"
         f"\nplot: {out}/learning_curve.png   curve: {out}/metrics.csv   summary: {out}/summary.json"
     )

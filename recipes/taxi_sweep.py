@@ -6,6 +6,7 @@ figures, curves, parameter table and claims table in results/taxi/.
 
 Options: recipes/config/taxi_sweep.yaml.
 """
+
 from __future__ import annotations
 
 import sys

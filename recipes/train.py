@@ -13,15 +13,16 @@ AtariConfig, document every one; `--cfg job` prints them) and
 the presets beside them. Atari's expert, demo and evaluation steps have their own recipes
 (recipes/atari_expert.py, atari_demos.py, atari_eval.py).
 """
+
 from __future__ import annotations
 
 import sys
 
+import atari  # recipes/atari.py
 import hydra
+import taxi  # recipes/taxi.py
 from omegaconf import DictConfig
 
-import atari  # recipes/atari.py
-import taxi  # recipes/taxi.py
 from torchrl_hybrid.utils.files import out_dir_from_overrides, out_dir_problem
 
 

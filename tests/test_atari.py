@@ -1,16 +1,17 @@
 import csv
+
 import pytest
 import torch
 
 pytest.importorskip("ale_py")
 
+from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 from torchrl.collectors import Collector  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
 from torchrl_hybrid.envs.atari import ATARI_GAMES, AtariEnv, action_names  # noqa: E402
 from torchrl_hybrid.modules import AtariEncoder, DualInverseDynamics, make_atari_actor_critic  # noqa: E402
 from torchrl_hybrid.objectives import DualInverseDynamicsLoss  # noqa: E402
-from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 
 def test_encoder_matches_the_paper():
@@ -95,8 +96,12 @@ from torchrl_hybrid.data import CurriculumSampler, load_demos, make_expert_buffe
 from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = {"env": {"num_envs": 2, "num_threads": 1}, "loss": {"n_steps": 4, "bc_start_frames": 64},
-        "logger": {"progress_bar": False, "log_every_frames": 128, "checkpoint": False}, "total_frames": 256}
+TINY = {
+    "env": {"num_envs": 2, "num_threads": 1},
+    "loss": {"n_steps": 4, "bc_start_frames": 64},
+    "logger": {"progress_bar": False, "log_every_frames": 128, "checkpoint": False},
+    "total_frames": 256,
+}
 
 
 def tiny(tmp, **kw):
@@ -115,11 +120,23 @@ def tiny(tmp, **kw):
 def test_every_stage_runs_for_every_game(tmp_path, game):
     expert = train_atari(tiny(tmp_path / "expert", variant="a2c", env={"game": game}))
     assert expert["frames"] == 256 and (tmp_path / "expert" / "model.pt").exists()
-    meta = record_demos(tmp_path / "expert" / "model.pt", tmp_path / "demos", num_trajectories=2, num_envs=2,
-                        max_steps=12, progress=False)
+    meta = record_demos(
+        tmp_path / "expert" / "model.pt",
+        tmp_path / "demos",
+        num_trajectories=2,
+        num_envs=2,
+        max_steps=12,
+        progress=False,
+    )
     assert meta["game"] == game and meta["num_trajectories"] == 2 and max(meta["lengths"]) <= 12
-    s = train_atari(tiny(tmp_path / "hybrid", variant="hybrid_dual", env={"game": game},
-                         demo={"path": str(tmp_path / "demos"), "curriculum_frames_per_step": 64}))
+    s = train_atari(
+        tiny(
+            tmp_path / "hybrid",
+            variant="hybrid_dual",
+            env={"game": game},
+            demo={"path": str(tmp_path / "demos"), "curriculum_frames_per_step": 64},
+        )
+    )
     assert s["frames"] == 256
     assert (tmp_path / "hybrid" / "metrics.csv").read_text().startswith("frames,return_mean")
 
@@ -128,8 +145,9 @@ def test_every_stage_runs_for_every_game(tmp_path, game):
 def pong_demos(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("pong")
     train_atari(tiny(tmp / "expert", variant="a2c"))
-    record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=3, num_envs=2, max_steps=20,
-                 progress=False)
+    record_demos(
+        tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=3, num_envs=2, max_steps=20, progress=False
+    )
     return tmp
 
 
@@ -150,13 +168,26 @@ def test_demo_dataset_round_trip_and_curriculum(pong_demos):
 
 def test_demo_cut_at_first_point_in_games_without_lives(pong_demos, tmp_path):
     # Pong has no lives: "auto" cuts at the first point lost (negative reward)
-    meta = record_demos(pong_demos / "expert" / "model.pt", tmp_path / "d", num_trajectories=2, num_envs=2,
-                        max_steps=400, progress=False)
+    meta = record_demos(
+        pong_demos / "expert" / "model.pt",
+        tmp_path / "d",
+        num_trajectories=2,
+        num_envs=2,
+        max_steps=400,
+        progress=False,
+    )
     assert meta["cut"].startswith("first point lost") and "point" in meta["ends"]
     for end, n in zip(meta["ends"], meta["lengths"]):
         assert end in ("point", "max_steps") and (n < 400) == (end == "point")
-    meta = record_demos(pong_demos / "expert" / "model.pt", tmp_path / "e", num_trajectories=1, num_envs=2,
-                        max_steps=150, cut="episode", progress=False)
+    meta = record_demos(
+        pong_demos / "expert" / "model.pt",
+        tmp_path / "e",
+        num_trajectories=1,
+        num_envs=2,
+        max_steps=150,
+        cut="episode",
+        progress=False,
+    )
     assert meta["ends"] == ["max_steps"] and meta["lengths"] == [150]
     with pytest.raises(ValueError, match="cut='lives'"):
         record_demos(pong_demos / "expert" / "model.pt", tmp_path / "f", cut="lives", progress=False)
@@ -164,10 +195,13 @@ def test_demo_cut_at_first_point_in_games_without_lives(pong_demos, tmp_path):
 
 def test_demo_mismatches_are_refused(pong_demos, tmp_path):
     with pytest.raises(ValueError, match="demos are for 'Pong'"):
-        train_atari(tiny(tmp_path, variant="hybrid_dual", env={"game": "Breakout"},
-                         demo={"path": str(pong_demos / "demos")}))
+        train_atari(
+            tiny(tmp_path, variant="hybrid_dual", env={"game": "Breakout"}, demo={"path": str(pong_demos / "demos")})
+        )
     with pytest.raises(ValueError, match="preprocessing"):
-        train_atari(tiny(tmp_path, variant="hybrid_dual", env={"noop_max": 5}, demo={"path": str(pong_demos / "demos")}))
+        train_atari(
+            tiny(tmp_path, variant="hybrid_dual", env={"noop_max": 5}, demo={"path": str(pong_demos / "demos")})
+        )
     with pytest.raises(ValueError, match="needs expert demos"):
         train_atari(tiny(tmp_path, variant="bc_dual"))
     with pytest.raises(ValueError, match="unknown Atari variant"):
@@ -178,27 +212,80 @@ def test_demo_mismatches_are_refused(pong_demos, tmp_path):
 
 def test_atari_recipes_command_line(tmp_path):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    common = ["env.num_envs=2", "env.num_threads=1", "env.max_episode_frames=400", "loss.n_steps=4", "total_frames=128",
-              "logger.progress_bar=false",
-              "logger.checkpoint=false", "logger.log_every_frames=64"]
-    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_expert.py"), f"out_dir={tmp_path}/e",
-                        "logger.eval_episodes=2", *common], capture_output=True, text=True, env=env, timeout=300)
+    common = [
+        "env.num_envs=2",
+        "env.num_threads=1",
+        "env.max_episode_frames=400",
+        "loss.n_steps=4",
+        "total_frames=128",
+        "logger.progress_bar=false",
+        "logger.checkpoint=false",
+        "logger.log_every_frames=64",
+    ]
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "recipes" / "atari_expert.py"),
+            f"out_dir={tmp_path}/e",
+            "logger.eval_episodes=2",
+            *common,
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert r.returncode == 0 and "evaluation: mean score" in r.stdout, r.stderr[-2000:]
     summary = json.loads((tmp_path / "e" / "summary.json").read_text())
     assert summary["evaluation"]["episodes"] == 2 and len(summary["evaluation"]["scores"]) == 2
     assert torch.load(tmp_path / "e" / "model.pt", weights_only=False)["evaluation"] == summary["evaluation"]
-    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_eval.py"), f"checkpoint={tmp_path}/e/model.pt",
-                        "episodes=1", "num_envs=1", "progress=false"], capture_output=True, text=True, env=env,
-                       timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "recipes" / "atari_eval.py"),
+            f"checkpoint={tmp_path}/e/model.pt",
+            "episodes=1",
+            "num_envs=1",
+            "progress=false",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert r.returncode == 0 and "over 1 episodes" in r.stdout, r.stderr[-2000:]
     assert json.loads((tmp_path / "e" / "eval.json").read_text())["episodes"] == 1
-    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari_demos.py"), f"expert={tmp_path}/e/model.pt",
-                        f"out={tmp_path}/d", "num_trajectories=2", "num_envs=2", "max_steps=8", "progress=false"],
-                       capture_output=True, text=True, env=env, timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "recipes" / "atari_demos.py"),
+            f"expert={tmp_path}/e/model.pt",
+            f"out={tmp_path}/d",
+            "num_trajectories=2",
+            "num_envs=2",
+            "max_steps=8",
+            "progress=false",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert r.returncode == 0 and "2 Pong trajectories" in r.stdout, r.stderr[-2000:]
-    r = subprocess.run([sys.executable, str(ROOT / "recipes" / "atari.py"), f"out_dir={tmp_path}/h",
-                        f"demo.path={tmp_path}/d", "loss.bc_start_frames=32", *common],
-                       capture_output=True, text=True, env=env, timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "recipes" / "atari.py"),
+            f"out_dir={tmp_path}/h",
+            f"demo.path={tmp_path}/d",
+            "loss.bc_start_frames=32",
+            *common,
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert r.returncode == 0 and "hybrid_dual" in r.stdout, r.stderr[-2000:]
 
 
@@ -222,8 +309,12 @@ def test_shared_feature_a2c_path_equals_plain_a2c_loss():
         enc._cache = None
         out = loss(b)
         sum(v for k, v in out.items() if k.startswith("loss_")).backward()
-        grads.append(([out[k].detach() for k in ("loss_objective", "loss_critic", "loss_entropy")],
-                      enc.convs[0].weight.grad.clone()))
+        grads.append(
+            (
+                [out[k].detach() for k in ("loss_objective", "loss_critic", "loss_entropy")],
+                enc.convs[0].weight.grad.clone(),
+            )
+        )
         for p in list(actor.parameters()) + list(critic.parameters()):
             p.grad = None
     for a, b in zip(grads[0][0], grads[1][0]):
@@ -257,9 +348,14 @@ def test_inverse_model_loss_is_unchanged_by_feature_reuse():
     actor, critic, enc, _ = make_atari_actor_critic(6)
     idm = DualInverseDynamics(enc, 6, rank=8)
     loss = DualInverseDynamicsLoss(idm, action_coeff=1.0)
-    td = TensorDict({"observation": torch.randint(0, 255, (3, 2, 4, 84, 84), dtype=torch.uint8),
-                     "action": torch.randint(6, (3, 2)),
-                     ("next", "observation"): torch.randint(0, 255, (3, 2, 4, 84, 84), dtype=torch.uint8)}, [3, 2])
+    td = TensorDict(
+        {
+            "observation": torch.randint(0, 255, (3, 2, 4, 84, 84), dtype=torch.uint8),
+            "action": torch.randint(6, (3, 2)),
+            ("next", "observation"): torch.randint(0, 255, (3, 2, 4, 84, 84), dtype=torch.uint8),
+        },
+        [3, 2],
+    )
     results = []
     for warm in (True, False):
         enc._cache = None
@@ -348,31 +444,50 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     from torchrl_hybrid.experiments.atari_compare import CompareConfig, run_compare
 
     base = {k: v for k, v in TINY.items() if k != "total_frames"}
-    cfg = CompareConfig(games=["Pong"], variants=["a2c", "hybrid_dual"], seeds=[0], total_frames=256,
-                        out_dir=str(tmp_path), demos={"Pong": str(pong_demos / "demos")}, workers=1, base=base)
+    cfg = CompareConfig(
+        games=["Pong"],
+        variants=["a2c", "hybrid_dual"],
+        seeds=[0],
+        total_frames=256,
+        out_dir=str(tmp_path),
+        demos={"Pong": str(pong_demos / "demos")},
+        workers=1,
+        base=base,
+    )
     (tmp_path / "summary.json").write_text(json.dumps({"Breakout": ["an earlier comparison's table"]}))
     with pytest.warns(UserWarning, match="'Breakout' in summary.json is not a comparison table"):
         result = run_compare(cfg)
     assert (tmp_path / "overview.png").stat().st_size > 0  # every game of the out_dir in one figure
     assert [t["variant"] for t in result["Pong"]] == ["a2c", "hybrid_dual"]
     # the out_dir's summary.json gains Pong and keeps the other game's table
-    assert json.loads((tmp_path / "summary.json").read_text()) == {"Breakout": ["an earlier comparison's table"],
-                                                                    **json.loads(json.dumps(result))}
+    assert json.loads((tmp_path / "summary.json").read_text()) == {
+        "Breakout": ["an earlier comparison's table"],
+        **json.loads(json.dumps(result)),
+    }
     assert result["Pong"][0]["idm_accuracy_expert"] is None and 0 <= result["Pong"][1]["idm_accuracy_expert"] <= 1
     for f in ("curves.csv", "summary.csv", "summary.md", "comparison.png"):
         assert (tmp_path / "Pong" / f).stat().st_size > 0
     md = (tmp_path / "Pong" / "summary.md").read_text()
-    assert "| hybrid_dual | 1 |" in md and "too few seeds (0 vs 0" in md and "along the run" in md  # no episode ended in 256 frames
+    assert (
+        "| hybrid_dual | 1 |" in md and "too few seeds (0 vs 0" in md and "along the run" in md
+    )  # no episode ended in 256 frames
     rows = (tmp_path / "Pong" / "curves.csv").read_text().splitlines()
-    assert rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy_expert,idm_accuracy,entropy,loss_bc,grad_norm"
+    assert (
+        rows[0] == "variant,seed,frames,episodes,return_mean,idm_accuracy_expert,idm_accuracy,entropy,loss_bc,grad_norm"
+    )
     assert all(r.split(",")[-1] for r in rows[1:])  # every update logs its gradient norm
     assert len(rows) == 1 + 2 * 3  # 3 logged points a run
     capsys.readouterr()
     run_compare(cfg)  # finished runs are not run again
     assert "0 run(s) to do" in capsys.readouterr().out
     # analyse_only: nothing is started (no demos needed); the unfinished run is named and left out
-    only = CompareConfig(games=["Pong"], variants=["a2c", "hybrid_dual", "hybrid_dual_soft"], seeds=[0],
-                         out_dir=str(tmp_path), analyse_only=True)
+    only = CompareConfig(
+        games=["Pong"],
+        variants=["a2c", "hybrid_dual", "hybrid_dual_soft"],
+        seeds=[0],
+        out_dir=str(tmp_path),
+        analyse_only=True,
+    )
     assert [t["variant"] for t in run_compare(only)["Pong"]] == ["a2c", "hybrid_dual"]
     assert "1 run(s) not finished, left out: Pong/hybrid_dual_soft_s0" in capsys.readouterr().out
     assert not (tmp_path / "Pong" / "hybrid_dual_soft_s0").exists()
@@ -393,17 +508,37 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
     with pytest.raises(ValueError, match="cannot take a variant's name"):
         run_compare(CompareConfig(variants=["a2c"], arms={"a2c": {"variant": "a2c"}}, out_dir=str(tmp_path)))
     with pytest.raises(ValueError, match=r"Pong/typo: unknown config key 'loss.bc_lables'"):
-        run_compare(CompareConfig(games=["Pong"], variants=["typo"], out_dir=str(tmp_path / "t"), base=base,
-                                  arms={"typo": {"variant": "a2c", "loss": {"bc_lables": "soft"}}}))
+        run_compare(
+            CompareConfig(
+                games=["Pong"],
+                variants=["typo"],
+                out_dir=str(tmp_path / "t"),
+                base=base,
+                arms={"typo": {"variant": "a2c", "loss": {"bc_lables": "soft"}}},
+            )
+        )
     assert not (tmp_path / "t").exists()  # refused before any run started
     # another comparison drawn beside this one's runs, under labels, without running it again; its
     # second arm is a named variant with overrides (a robust one of ROBUST_ARMS), run in <arm>_s<seed>
-    beside = CompareConfig(games=["Pong"], variants=["a2c", "hybrid_dual_soft"], seeds=[0], total_frames=256,
-                           out_dir=str(tmp_path / "b"), demos={"Pong": str(pong_demos / "demos")}, workers=1,
-                           base=base, baselines={"first": str(tmp_path)}, label="again")
+    beside = CompareConfig(
+        games=["Pong"],
+        variants=["a2c", "hybrid_dual_soft"],
+        seeds=[0],
+        total_frames=256,
+        out_dir=str(tmp_path / "b"),
+        demos={"Pong": str(pong_demos / "demos")},
+        workers=1,
+        base=base,
+        baselines={"first": str(tmp_path)},
+        label="again",
+    )
     table = run_compare(beside)["Pong"]
-    assert [t["variant"] for t in table] == ["a2c (again)", "hybrid_dual_soft (again)", "a2c (first)",
-                                             "hybrid_dual (first)"]
+    assert [t["variant"] for t in table] == [
+        "a2c (again)",
+        "hybrid_dual_soft (again)",
+        "a2c (first)",
+        "hybrid_dual (first)",
+    ]
     assert table[2]["seeds"] == 1 and table[2]["frames_per_s"] == result["Pong"][0]["frames_per_s"]
     run_cfg = json.loads((tmp_path / "b" / "Pong" / "hybrid_dual_soft_s0" / "config.json").read_text())
     assert run_cfg["variant"] == "hybrid_dual" and run_cfg["loss"]["bc_labels"] == "soft"
@@ -433,13 +568,26 @@ def test_comparison_states_faster_or_slower_than_a2c_only_with_3_seeds_each(tmp_
     from torchrl_hybrid.experiments.atari_compare import _summary_markdown, _versus_reference
 
     def row(variant, auc, acc=None):
-        return {"variant": variant, "seeds": len(auc), "final_per_seed": auc, "final_mean": float(sum(auc) / len(auc)),
-                "final_ci95": None, "auc_per_seed": auc, "auc_mean": float(sum(auc) / len(auc)), "auc_ci95": None,
-                "idm_accuracy_expert": acc}
+        return {
+            "variant": variant,
+            "seeds": len(auc),
+            "final_per_seed": auc,
+            "final_mean": float(sum(auc) / len(auc)),
+            "final_ci95": None,
+            "auc_per_seed": auc,
+            "auc_mean": float(sum(auc) / len(auc)),
+            "auc_ci95": None,
+            "idm_accuracy_expert": acc,
+        }
 
-    table = [row("a2c", [10.0, 11.0, 12.0]), row("fast", [20.0, 21.0, 22.0], 0.7),
-             row("same", [9.0, 11.5, 12.5], 0.5), row("slow", [1.0, 2.0, 3.0]), row("two", [30.0, 31.0]),
-             row("stalled", [30.0, 31.0, float("nan")])]
+    table = [
+        row("a2c", [10.0, 11.0, 12.0]),
+        row("fast", [20.0, 21.0, 22.0], 0.7),
+        row("same", [9.0, 11.5, 12.5], 0.5),
+        row("slow", [1.0, 2.0, 3.0]),
+        row("two", [30.0, 31.0]),
+        row("stalled", [30.0, 31.0, float("nan")]),
+    ]
     _versus_reference(table)
     by = {t["variant"]: t for t in table}
     assert by["a2c"]["verdict_vs_a2c"] == "" and by["a2c"]["auc_minus_a2c"] is None
@@ -456,16 +604,28 @@ def test_comparison_states_faster_or_slower_than_a2c_only_with_3_seeds_each(tmp_
     assert md[0] == "### Breakout" and "last 200k game frames" in md[2]
     assert md[7].startswith("| fast | 3 | 20.00, 21.00, 22.00 | 21.00 |") and md[7].endswith("p = 0.10 | faster |")
     assert "| 70.0% |" in md[7] and "| 30.00, 31.00, – |" in md[11]
-    md = _summary_markdown("Breakout", table[:2], 200_000,
-                           {"a2c": ([1_000_000, 2_000_000], [1.5, 3.0]), "fast": ([1_000_000, 2_000_000], [2.0, float("nan")])})
-    assert md.splitlines()[-4:] == ["| variant | 1M | 2M |", "|---|---|---|", "| a2c | 1.50 | 3.00 |", "| fast | 2.00 | – |"]
+    md = _summary_markdown(
+        "Breakout",
+        table[:2],
+        200_000,
+        {"a2c": ([1_000_000, 2_000_000], [1.5, 3.0]), "fast": ([1_000_000, 2_000_000], [2.0, float("nan")])},
+    )
+    assert md.splitlines()[-4:] == [
+        "| variant | 1M | 2M |",
+        "|---|---|---|",
+        "| a2c | 1.50 | 3.00 |",
+        "| fast | 2.00 | – |",
+    ]
     # no a2c in the comparison: no verdicts at all
     table = [row("fast", [20.0, 21.0, 22.0])]
     _versus_reference(table)
     assert table[0]["verdict_vs_a2c"] == "" and "| – | – |" in _summary_markdown("Pong", table, 100_000)
     # a comparison drawn beside a baseline folder's a2c (label): that a2c is the reference
-    table = [row("hybrid_dual (soft)", [1.0, 2.0, 3.0]), row("a2c (paper settings)", [10.0, 11.0, 12.0]),
-             row("hybrid_dual (paper settings)", [20.0, 21.0, 22.0])]
+    table = [
+        row("hybrid_dual (soft)", [1.0, 2.0, 3.0]),
+        row("a2c (paper settings)", [10.0, 11.0, 12.0]),
+        row("hybrid_dual (paper settings)", [20.0, 21.0, 22.0]),
+    ]
     _versus_reference(table)
     assert [t["verdict_vs_a2c"] for t in table] == ["slower", "", "faster"]
 
@@ -482,35 +642,67 @@ def test_each_named_arm_states_the_one_option_it_adds_to_its_base():
     assert bases["hybrid_dual_soft_anneal_own"] == ("hybrid_dual_soft_anneal", "idm_encoder=own, optim.clip=per_group")
     # base is the analysis' word, not a training setting: the run's overrides do not hold it
     assert "base" not in cfg.arm("hybrid_dual_gate")[1]
-    assert option_text(("bc_dual", {"loss": {"bc_coeff": 2.0}}), ("hybrid_dual", {"loss": {"bc_labels": "soft"}})) \
+    assert (
+        option_text(("bc_dual", {"loss": {"bc_coeff": 2.0}}), ("hybrid_dual", {"loss": {"bc_labels": "soft"}}))
         == "variant=bc_dual, loss.bc_coeff=2.0, loss.bc_labels=default"
+    )
     # an arm of one's own may name a base; a base that is no variant or arm is refused by name
-    mine = CompareConfig(variants=["half"], analyse_only=True,
-                         arms={"half": {"variant": "hybrid_dual", "base": "hybrid_dual_soft",
-                                        "loss": {"bc_labels": "soft", "bc_coeff": 0.5}}}).validate()
+    mine = CompareConfig(
+        variants=["half"],
+        analyse_only=True,
+        arms={
+            "half": {
+                "variant": "hybrid_dual",
+                "base": "hybrid_dual_soft",
+                "loss": {"bc_labels": "soft", "bc_coeff": 0.5},
+            }
+        },
+    ).validate()
     assert mine.bases()["half"] == ("hybrid_dual_soft", "loss.bc_coeff=0.5") and mine.arm("half")[1] == {
-        "loss": {"bc_labels": "soft", "bc_coeff": 0.5}}
+        "loss": {"bc_labels": "soft", "bc_coeff": 0.5}
+    }
     for base in ("hybrid_dual_sofft", "half"):
         with pytest.raises(ValueError, match=rf"arms.half.base='{base}': name the variant or arm"):
-            CompareConfig(variants=["half"], analyse_only=True,
-                          arms={"half": {"variant": "hybrid_dual", "base": base}}).validate()
+            CompareConfig(
+                variants=["half"], analyse_only=True, arms={"half": {"variant": "hybrid_dual", "base": base}}
+            ).validate()
 
 
 def test_option_effects_compare_each_arm_with_its_base_only_with_3_seeds_each():
     from torchrl_hybrid.experiments.atari_compare import _summary_markdown, _versus_reference, option_effects
 
     def row(variant, auc):
-        return {"variant": variant, "seeds": len(auc), "final_per_seed": auc, "final_mean": float(sum(auc) / len(auc)),
-                "final_ci95": None, "auc_per_seed": auc, "auc_mean": float(sum(auc) / len(auc)), "auc_ci95": None,
-                "idm_accuracy_expert": None}
+        return {
+            "variant": variant,
+            "seeds": len(auc),
+            "final_per_seed": auc,
+            "final_mean": float(sum(auc) / len(auc)),
+            "final_ci95": None,
+            "auc_per_seed": auc,
+            "auc_mean": float(sum(auc) / len(auc)),
+            "auc_ci95": None,
+            "idm_accuracy_expert": None,
+        }
 
-    bases = {"soft": ("paper", "loss.bc_labels=soft"), "gate": ("soft", "loss.bc_confidence=0.6"),
-             "floor": ("paper", "loss.bc_entropy_floor=1.0"), "anneal": ("soft", "loss.bc_anneal_frames=2"),
-             "ready": ("paper", "loss.bc_ready_accuracy=0.4"), "own": ("anneal", "idm_encoder=own")}
-    table = [row("a2c", [10.0, 11.0, 12.0]), row("paper", [1.0, 2.0, 3.0]), row("soft", [5.0, 6.0, 7.0]),
-             row("gate", [5.5, 6.2, 6.9]), row("floor", [0.0, 0.5, 1.0]), row("anneal", [8.0, 9.0]),
-             row("ready", [1.0, 2.0, float("nan")]),
-             row("soft (strong demos)", [1.0, 1.5, 2.0]), row("paper (strong demos)", [3.0, 3.5, 4.0])]
+    bases = {
+        "soft": ("paper", "loss.bc_labels=soft"),
+        "gate": ("soft", "loss.bc_confidence=0.6"),
+        "floor": ("paper", "loss.bc_entropy_floor=1.0"),
+        "anneal": ("soft", "loss.bc_anneal_frames=2"),
+        "ready": ("paper", "loss.bc_ready_accuracy=0.4"),
+        "own": ("anneal", "idm_encoder=own"),
+    }
+    table = [
+        row("a2c", [10.0, 11.0, 12.0]),
+        row("paper", [1.0, 2.0, 3.0]),
+        row("soft", [5.0, 6.0, 7.0]),
+        row("gate", [5.5, 6.2, 6.9]),
+        row("floor", [0.0, 0.5, 1.0]),
+        row("anneal", [8.0, 9.0]),
+        row("ready", [1.0, 2.0, float("nan")]),
+        row("soft (strong demos)", [1.0, 1.5, 2.0]),
+        row("paper (strong demos)", [3.0, 3.5, 4.0]),
+    ]
     _versus_reference(table)
     option_effects(table, bases)
     by = {t["variant"]: t for t in table}
@@ -548,7 +740,8 @@ def test_effects_figure_draws_the_options_with_an_interval(tmp_path):
     for t in (breakout, pong):
         option_effects(t, bases)
     assert effects_figure({"Breakout": breakout, "Pong": pong, "Qbert": ["old"]}, tmp_path / "e.png") == {
-        "Breakout": ["soft"]}  # the gate has 2 seeds: no interval, not drawn; Pong has no effect to draw
+        "Breakout": ["soft"]
+    }  # the gate has 2 seeds: no interval, not drawn; Pong has no effect to draw
     assert (tmp_path / "e.png").stat().st_size > 0
     with pytest.raises(ValueError, match="no arm in summary has a measured option effect"):
         effects_figure({"Pong": pong}, tmp_path / "none.png")
@@ -562,16 +755,30 @@ def test_overview_figure_draws_every_game_against_a2c(tmp_path):
 
     def row(variant, auc, final):
         mean = lambda xs: float(np.nanmean(np.array(xs, float)))  # noqa: E731
-        return {"variant": variant, "seeds": len(auc), "auc_per_seed": auc, "auc_mean": mean(auc),
-                "auc_ci95": None, "final_per_seed": final, "final_mean": mean(final), "final_ci95": None}
+        return {
+            "variant": variant,
+            "seeds": len(auc),
+            "auc_per_seed": auc,
+            "auc_mean": mean(auc),
+            "auc_ci95": None,
+            "final_per_seed": final,
+            "final_mean": mean(final),
+            "final_ci95": None,
+        }
 
     # a2c listed last is drawn on top; a seed without a final score (None in summary.json) is no dot
-    breakout = [row("hybrid_dual", [8.0, 11.0, 2.0], [18.0, None, 19.0]), row("a2c", [20.0, 21.0, 17.0], [48.0, 45.0, 51.0])]
+    breakout = [
+        row("hybrid_dual", [8.0, 11.0, 2.0], [18.0, None, 19.0]),
+        row("a2c", [20.0, 21.0, 17.0], [48.0, 45.0, 51.0]),
+    ]
     for t in breakout:
         t["auc_ci95"] = [min(t["auc_per_seed"]), max(t["auc_per_seed"])]
     _versus_reference(breakout)
-    summary = {"Breakout": breakout, "Pong": [row("hybrid_dual", [-20.0], [-19.0])],  # no a2c: drawn, no band
-               "Qbert": ["an older entry"]}
+    summary = {
+        "Breakout": breakout,
+        "Pong": [row("hybrid_dual", [-20.0], [-19.0])],  # no a2c: drawn, no band
+        "Qbert": ["an older entry"],
+    }
     with pytest.warns(UserWarning, match="'Qbert' in summary.json is not a comparison table"):
         drawn = overview_figure(summary, tmp_path / "o.png")
     assert drawn == {"Breakout": ["a2c", "hybrid_dual"], "Pong": ["hybrid_dual"]}
@@ -623,15 +830,27 @@ def test_a_run_resumes_from_its_checkpoint(tmp_path):
 
 def test_atari_recipes_name_missing_arguments():
     for recipe, args, key in (("atari_eval.py", [], "checkpoint"), ("atari_demos.py", ["expert=x.pt"], "out")):
-        r = subprocess.run([sys.executable, str(ROOT / "recipes" / recipe), *args], capture_output=True, text=True,
-                           timeout=120)
+        r = subprocess.run(
+            [sys.executable, str(ROOT / "recipes" / recipe), *args], capture_output=True, text=True, timeout=120
+        )
         assert r.returncode == 2 and f"error: {key}=... is required" in r.stderr, r.stderr[-1000:]
 
 
 def test_demo_recording_is_seeded(pong_demos, tmp_path):
     expert = pong_demos / "expert" / "model.pt"
-    runs = [record_demos(expert, tmp_path / f"d{i}", num_trajectories=2, num_envs=2, max_steps=30, seed=5,
-                         progress=False, device="cpu") for i in range(2)]
+    runs = [
+        record_demos(
+            expert,
+            tmp_path / f"d{i}",
+            num_trajectories=2,
+            num_envs=2,
+            max_steps=30,
+            seed=5,
+            progress=False,
+            device="cpu",
+        )
+        for i in range(2)
+    ]
     assert runs[0]["lengths"] == runs[1]["lengths"]
     a, _ = load_demos(tmp_path / "d0")
     b, _ = load_demos(tmp_path / "d1")
@@ -657,8 +876,14 @@ def test_hybrid_runs_with_its_games_in_worker_processes(pong_demos, tmp_path, ki
     if kind == "ray":
         ray = pytest.importorskip("ray")
     try:
-        s = train_atari(tiny(tmp_path, variant="hybrid_dual", collector={"backend": kind, "workers": 2},
-                             demo={"path": str(pong_demos / "demos")}))
+        s = train_atari(
+            tiny(
+                tmp_path,
+                variant="hybrid_dual",
+                collector={"backend": kind, "workers": 2},
+                demo={"path": str(pong_demos / "demos")},
+            )
+        )
     finally:
         if kind == "ray":
             ray.shutdown()
@@ -693,7 +918,9 @@ def test_action_effect_diagnostic_counts_the_actions_s_and_next_s_tell_apart(tmp
     for r in (qbert, pong):
         assert r["actions"] == 6 and sum(r["classes_histogram"].values()) == 50
     assert qbert["no_action_visible"] > 0.8 and qbert["mean_classes"] < 1.5
-    assert pong["no_action_visible"] < 0.2 and 2.0 < pong["mean_classes"] <= 3.0  # NOOP/FIRE, the two ups, the two downs
+    assert (
+        pong["no_action_visible"] < 0.2 and 2.0 < pong["mean_classes"] <= 3.0
+    )  # NOOP/FIRE, the two ups, the two downs
     saved = tmp_path / "effect.json"
     saved.write_text(json.dumps([qbert, pong]))  # as --out writes it (JSON turns the histogram's keys to strings)
     mod.plot(json.loads(saved.read_text()), tmp_path / "effect.png")
@@ -714,8 +941,14 @@ def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_
     spec = importlib.util.spec_from_file_location("inverse_labels", ROOT / "benchmarks" / "atari_inverse_labels.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    run = build_atari(tiny(tmp_path / "hybrid", variant="hybrid_dual", demo={"path": str(pong_demos / "demos")},
-                           idm_encoder=idm_encoder))
+    run = build_atari(
+        tiny(
+            tmp_path / "hybrid",
+            variant="hybrid_dual",
+            demo={"path": str(pong_demos / "demos")},
+            idm_encoder=idm_encoder,
+        )
+    )
     run.trainer.train()
     demos, _ = load_demos(pong_demos / "demos")
     run.encoder.reuse_features = run.inverse_model.encoder.reuse_features = False
@@ -774,8 +1007,9 @@ def test_inverse_model_with_its_own_cnn_leaves_the_policy_cnn_to_a2c(pong_demos,
     from torchrl_hybrid.trainers.run import finish_run
 
     demo = {"path": str(pong_demos / "demos")}
-    run = build_atari(tiny(tmp_path / "own", variant="hybrid_dual", demo=demo, idm_encoder="own",
-                           logger={"checkpoint": True}))
+    run = build_atari(
+        tiny(tmp_path / "own", variant="hybrid_dual", demo=demo, idm_encoder="own", logger={"checkpoint": True})
+    )
     shared = build_atari(tiny(tmp_path / "shared", variant="hybrid_dual", demo=demo))
     assert shared.inverse_model.encoder is shared.encoder and run.inverse_model.encoder is not run.encoder
     own_ids = {id(p) for p in run.inverse_model.encoder.parameters()}
@@ -795,8 +1029,17 @@ def test_inverse_model_with_its_own_cnn_leaves_the_policy_cnn_to_a2c(pong_demos,
     assert s["frames"] == 256 - 4 * batch.numel() and 0 <= s["idm_accuracy_expert"] <= 1  # less the batch taken above
     assert json.loads((tmp_path / "own" / "config.json").read_text())["idm_encoder"] == "own"
     with pytest.raises(ValueError, match="idm_encoder"):
-        build_atari(tiny(tmp_path / "own", variant="hybrid_dual", demo=demo, idm_encoder="shared", resume=True,
-                         total_frames=512, logger={"checkpoint": True}))
+        build_atari(
+            tiny(
+                tmp_path / "own",
+                variant="hybrid_dual",
+                demo=demo,
+                idm_encoder="shared",
+                resume=True,
+                total_frames=512,
+                logger={"checkpoint": True},
+            )
+        )
     with pytest.raises(ValueError, match=r"idm_encoder='mine': choose one of \('shared', 'own'\)"):
         tiny(tmp_path / "bad", idm_encoder="mine").validate()
 
@@ -821,6 +1064,7 @@ def test_init_from_warm_starts_the_networks_and_counts_their_frames(tmp_path):
     saved = torch.load(tmp_path / "first" / "model.pt", weights_only=False)
     assert saved["total_frames_seen"] == first["frames"] == 256
     from torchrl_hybrid.trainers.atari import build_atari
+
     run = build_atari(tiny(tmp_path / "warm", variant="a2c", seed=7, init_from=str(tmp_path / "first" / "model.pt")))
     try:
         for k, v in saved["actor"].items():
@@ -831,7 +1075,9 @@ def test_init_from_warm_starts_the_networks_and_counts_their_frames(tmp_path):
         assert run.init_frames == 256
         run.trainer.train()  # auto warm-up (optim.warmup_frames=None): lr rises over 100 updates of 32 frames
         assert run.trainer.collected_frames == 256
-        assert [g["lr"] for g in run.trainer.optimizer.param_groups] == pytest.approx([7e-4 * 256 / 3200])  # a2c: one group
+        assert [g["lr"] for g in run.trainer.optimizer.param_groups] == pytest.approx(
+            [7e-4 * 256 / 3200]
+        )  # a2c: one group
     finally:
         run.lock.close()
         run.collector.shutdown()
@@ -839,16 +1085,18 @@ def test_init_from_warm_starts_the_networks_and_counts_their_frames(tmp_path):
     assert s["frames"] == 256 and s["total_frames_seen"] == 512 and s["init_from"].endswith("model.pt")
     again = torch.load(tmp_path / "warm2" / "model.pt", weights_only=False)["total_frames_seen"]
     assert again == 512
-    meta = record_demos(tmp_path / "warm2" / "model.pt", tmp_path / "demos", num_trajectories=1, num_envs=1,
-                        max_steps=4, progress=False)
+    meta = record_demos(
+        tmp_path / "warm2" / "model.pt", tmp_path / "demos", num_trajectories=1, num_envs=1, max_steps=4, progress=False
+    )
     assert meta["expert_frames"] == 512  # the weights' whole history, not this piece's 256
 
 
 def test_init_from_refuses_another_game_or_a_missing_file(tmp_path):
     train_atari(tiny(tmp_path / "pong", variant="a2c"))
     with pytest.raises(ValueError, match=r"other settings for \['env.game'\].*'Pong' \(saved\) vs 'Breakout'"):
-        train_atari(tiny(tmp_path / "b", variant="a2c", env={"game": "Breakout"},
-                         init_from=str(tmp_path / "pong" / "model.pt")))
+        train_atari(
+            tiny(tmp_path / "b", variant="a2c", env={"game": "Breakout"}, init_from=str(tmp_path / "pong" / "model.pt"))
+        )
     with pytest.raises(FileNotFoundError, match="init_from='nope.pt': no such file"):
         train_atari(tiny(tmp_path / "c", variant="a2c", init_from="nope.pt"))
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
@@ -861,8 +1109,15 @@ def test_oracle_arm_and_the_balance_and_label_options_run_on_atari(pong_demos, t
     """hybrid_true (BC on the demos' true actions: a diagnostic), the BC gradient clipped apart,
     prior-corrected labels and extra BC / inverse-model updates, in the Atari pipeline."""
     demo = {"path": str(pong_demos / "demos")}
-    s = train_atari(tiny(tmp_path / "a", variant="hybrid_dual", demo=demo, optim={"clip": "per_term"},
-                         loss={"bc_prior_floor": 0.05, "bc_updates": 1, "idm_updates": 1}))
+    s = train_atari(
+        tiny(
+            tmp_path / "a",
+            variant="hybrid_dual",
+            demo=demo,
+            optim={"clip": "per_term"},
+            loss={"bc_prior_floor": 0.05, "bc_updates": 1, "idm_updates": 1},
+        )
+    )
     rows = list(csv.DictReader((tmp_path / "a" / "metrics.csv").open()))
     assert s["frames"] == 256 and {"grad_norm_rl", "grad_norm_inverse_model", "grad_norm_bc"} <= set(rows[-1])
     s = train_atari(tiny(tmp_path / "b", variant="hybrid_true", demo=demo))

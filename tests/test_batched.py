@@ -1,4 +1,5 @@
 """The batched fast path computes the same algorithm as the TorchRL pipeline."""
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -45,8 +46,11 @@ def test_batched_losses_equal_torchrl_losses(kind):
     torch.manual_seed(0)
     cfg = TaxiConfig(variant=f"hybrid_{kind}")
     actor, critic = make_tabular_actor_critic(500, 6)
-    idm = (DualInverseDynamics(OneHotEncoder(500), 6, rank=2) if kind == "dual"
-           else MLPInverseDynamics(OneHotEncoder(500), 6))
+    idm = (
+        DualInverseDynamics(OneHotEncoder(500), 6, rank=2)
+        if kind == "dual"
+        else MLPInverseDynamics(OneHotEncoder(500), 6)
+    )
     loss = make_hybrid_loss(VARIANTS[cfg.variant], actor, critic, idm)
     # a real rollout with short episodes, so that it holds terminations and truncations
     env = make_toy_text_env(num_envs=16, max_episode_steps=3, seed=1)
@@ -56,6 +60,7 @@ def test_batched_losses_equal_torchrl_losses(kind):
     from torchrl_hybrid.data import VisitedStateSampler, make_expert_buffer, tabular_state_pairs
     from torchrl_hybrid.envs import TabularModel
     from torchrl_hybrid.experts import optimal_policy
+
     model = TabularModel.from_gym("Taxi-v4")
     demos = tabular_state_pairs(model, optimal_policy(model)[0])
     buffer = make_expert_buffer(demos, sampler=VisitedStateSampler(500), batch_size=32)  # ignored by this sampler
@@ -67,9 +72,18 @@ def test_batched_losses_equal_torchrl_losses(kind):
     agents = BatchedTabularAgents(cfg, [0], 500, 6)
     copy_into(agents, actor, critic, idm)
     u = lambda key: batch[key].unsqueeze(0)  # noqa: E731
-    got = a2c_terms(agents, u("observation"), u("action"), u(("next", "reward")).squeeze(-1),
-                    u(("next", "observation")), u(("next", "terminated")).squeeze(-1),
-                    u(("next", "done")).squeeze(-1), 0.99, 0.2, 0.5)
+    got = a2c_terms(
+        agents,
+        u("observation"),
+        u("action"),
+        u(("next", "reward")).squeeze(-1),
+        u(("next", "observation")),
+        u(("next", "terminated")).squeeze(-1),
+        u(("next", "done")).squeeze(-1),
+        0.99,
+        0.2,
+        0.5,
+    )
     flat = lambda key: u(key).reshape(1, -1)  # noqa: E731
     got.update(idm_loss_terms(agents, flat("observation"), flat("action"), flat(("next", "observation")), cfg.loss))
     d = _Demos([demos], 500)
@@ -89,8 +103,10 @@ def test_lazy_rmsprop_equals_dense_rmsprop_with_clipping():
     K, rows, D = 3, 5, 4
     table = torch.randn(K * rows, D)
     dense = torch.randn(K, 2)
-    ref_t, ref_d = [table[k * rows:(k + 1) * rows].clone().requires_grad_() for k in range(K)], \
-        [dense[k].clone().requires_grad_() for k in range(K)]
+    ref_t, ref_d = (
+        [table[k * rows : (k + 1) * rows].clone().requires_grad_() for k in range(K)],
+        [dense[k].clone().requires_grad_() for k in range(K)],
+    )
     refs = [torch.optim.RMSprop([ref_t[k], ref_d[k]], lr=0.1, alpha=0.9, eps=1e-5) for k in range(K)]
     lt, ld = table.clone().requires_grad_(), dense.clone().requires_grad_()
     lazy = LazyRMSprop([ld], [(lt, rows)], K, lr=0.1, alpha=0.9, eps=1e-5, max_norm=0.7)
@@ -105,7 +121,7 @@ def test_lazy_rmsprop_equals_dense_rmsprop_with_clipping():
             refs[k].zero_grad()
         flat = (idx + torch.arange(K).unsqueeze(1) * rows).reshape(-1)
         emb = torch.nn.functional.embedding(flat, lt, sparse=True).view(K, 2, D)
-        ((emb * w).sum() + (ld ** 2).sum() * step).backward()
+        ((emb * w).sum() + (ld**2).sum() * step).backward()
         lazy.step()
     assert torch.allclose(torch.cat(ref_t).detach(), lt.detach(), atol=1e-5)
     assert torch.allclose(torch.stack(ref_d).detach(), ld.detach(), atol=1e-5)
@@ -114,16 +130,20 @@ def test_lazy_rmsprop_equals_dense_rmsprop_with_clipping():
 
 
 def tiny(tmp_path, **kw):
-    d = {"total_frames": 640, "out_dir": str(tmp_path), "logger": {"log_every_frames": 320, "eval_episodes": 8,
-         "final_eval_episodes": 8, "progress_bar": False}}
+    d = {
+        "total_frames": 640,
+        "out_dir": str(tmp_path),
+        "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": False},
+    }
     d.update(kw)
     return config_from_dict(d)
 
 
 @pytest.mark.parametrize("variant", list(VARIANTS))
 def test_batched_variants_run_and_write_outputs(tmp_path, variant):
-    cfgs = [tiny(tmp_path / str(s), variant=variant, seed=s, demo={"eta": 0.25 * s, "epsilon": 0.1 * s})
-            for s in range(3)]
+    cfgs = [
+        tiny(tmp_path / str(s), variant=variant, seed=s, demo={"eta": 0.25 * s, "epsilon": 0.1 * s}) for s in range(3)
+    ]
     out = train_taxi_batched(cfgs, plot=False)
     assert [o["seed"] for o in out] == [0, 1, 2] and all(o["frames"] == 640 for o in out)
     for s in range(3):
@@ -151,7 +171,8 @@ def test_fast_path_and_torchrl_path_learn_alike():
     from pathlib import Path
 
     spec = importlib.util.spec_from_file_location(
-        "paths_agree", Path(__file__).resolve().parents[1] / "benchmarks" / "taxi_paths_agree.py")
+        "paths_agree", Path(__file__).resolve().parents[1] / "benchmarks" / "taxi_paths_agree.py"
+    )
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     r = mod.compare("hybrid_dual", seeds=4, frames=24_000)

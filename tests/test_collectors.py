@@ -1,4 +1,5 @@
 """AtariCollector against TorchRL's Collector, feature reuse, devices."""
+
 import pytest
 import torch
 
@@ -15,15 +16,33 @@ from torchrl_hybrid.trainers.atari import atari_config, build_atari, load_expert
 from torchrl_hybrid.utils.device import resolve_device  # noqa: E402
 
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
-EXACT = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "score"),
-         ("next", "episode_score"), ("next", "done"), ("next", "terminated"), ("next", "truncated"), ("next", "lives"))
+EXACT = (
+    "observation",
+    "action",
+    ("next", "observation"),
+    ("next", "reward"),
+    ("next", "score"),
+    ("next", "episode_score"),
+    ("next", "done"),
+    ("next", "terminated"),
+    ("next", "truncated"),
+    ("next", "lives"),
+)
 
 
 def _reference_batches(policy, game, n, steps, batches, seed, max_frames):
-    env = TransformedEnv(AtariEnv(game, n, seed=seed, num_threads=1, max_episode_frames=max_frames),
-                         RewardSum(in_keys=["score"], out_keys=["episode_score"]))
-    ref = Collector(env, policy, frames_per_batch=n * steps, total_frames=n * steps * batches,
-                    auto_register_policy_transforms=False, exploration_type=ExplorationType.DETERMINISTIC)
+    env = TransformedEnv(
+        AtariEnv(game, n, seed=seed, num_threads=1, max_episode_frames=max_frames),
+        RewardSum(in_keys=["score"], out_keys=["episode_score"]),
+    )
+    ref = Collector(
+        env,
+        policy,
+        frames_per_batch=n * steps,
+        total_frames=n * steps * batches,
+        auto_register_policy_transforms=False,
+        exploration_type=ExplorationType.DETERMINISTIC,
+    )
     out = [b.clone() for b in ref]
     ref.shutdown()
     return out
@@ -36,8 +55,11 @@ def test_atari_collector_gives_torchrl_collectors_batches(groups):
     *_, policy = make_atari_actor_critic(4)
     ref = _reference_batches(policy, "Breakout", 4, 40, 4, seed=3, max_frames=200)
     envs = AtariCollector.make_envs("Breakout", 4, groups=groups, seed=3, num_threads=1, max_episode_frames=200)
-    ours = list(AtariCollector(envs, policy, frames_per_batch=160, total_frames=640,
-                               exploration_type=ExplorationType.DETERMINISTIC))
+    ours = list(
+        AtariCollector(
+            envs, policy, frames_per_batch=160, total_frames=640, exploration_type=ExplorationType.DETERMINISTIC
+        )
+    )
     assert len(ours) == len(ref) == 4
     assert sum(int(b["next", "done"].sum()) for b in ours) >= 8
     for a, b in zip(ref, ours):
@@ -71,15 +93,23 @@ def _loss_and_grads(run, batch, clear_cache):
     run.loss.zero_grad()
     out = run.loss(batch)
     sum(v for k, v in out.items() if k.startswith("loss_")).backward()
-    return ({k: v.detach().clone() for k, v in out.items()},
-            [p.grad.clone() if p.grad is not None else None for p in run.loss.parameters()])
+    return (
+        {k: v.detach().clone() for k, v in out.items()},
+        [p.grad.clone() if p.grad is not None else None for p in run.loss.parameters()],
+    )
 
 
 @pytest.mark.parametrize("variant", ["a2c", "hybrid_dual"])
 def test_kept_collection_features_give_the_plain_loss_and_gradients(tmp_path, variant, pong_demo_dir):
-    cfg = {"variant": variant, "total_frames": 4 * 160, "out_dir": str(tmp_path), "device": "cpu",
-           "env": {"game": "Pong", "num_envs": 8, "num_threads": 1}, "loss": {"bc_start_frames": 0},
-           "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}
+    cfg = {
+        "variant": variant,
+        "total_frames": 4 * 160,
+        "out_dir": str(tmp_path),
+        "device": "cpu",
+        "env": {"game": "Pong", "num_envs": 8, "num_threads": 1},
+        "loss": {"bc_start_frames": 0},
+        "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"},
+    }
     if variant != "a2c":
         cfg["demo"] = {"path": str(pong_demo_dir)}
     run = build_atari(atari_config(cfg))
@@ -108,27 +138,55 @@ def pong_demo_dir(tmp_path_factory):
     from torchrl_hybrid.trainers.atari import record_demos
 
     tmp = tmp_path_factory.mktemp("pong_demos")
-    train_atari(atari_config({"variant": "a2c", "total_frames": 4 * 80, "out_dir": str(tmp / "expert"),
-                              "device": "cpu", "env": {"num_envs": 8, "num_threads": 1},
-                              "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}))
-    record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=2, num_envs=2, max_steps=20,
-                 progress=False, device="cpu")
+    train_atari(
+        atari_config(
+            {
+                "variant": "a2c",
+                "total_frames": 4 * 80,
+                "out_dir": str(tmp / "expert"),
+                "device": "cpu",
+                "env": {"num_envs": 8, "num_threads": 1},
+                "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"},
+            }
+        )
+    )
+    record_demos(
+        tmp / "expert" / "model.pt",
+        tmp / "demos",
+        num_trajectories=2,
+        num_envs=2,
+        max_steps=20,
+        progress=False,
+        device="cpu",
+    )
     return tmp / "demos"
 
 
 def test_more_envs_than_the_paper_and_env_groups(tmp_path):
-    s = train_atari(atari_config({"variant": "a2c", "total_frames": 4 * 32 * 5 * 2, "out_dir": str(tmp_path),
-                                  "device": "cpu", "env": {"game": "Pong", "num_envs": 32, "num_threads": 1},
-                                  "collector": {"env_groups": 2},
-                                  "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"}}))
+    s = train_atari(
+        atari_config(
+            {
+                "variant": "a2c",
+                "total_frames": 4 * 32 * 5 * 2,
+                "out_dir": str(tmp_path),
+                "device": "cpu",
+                "env": {"game": "Pong", "num_envs": 32, "num_threads": 1},
+                "collector": {"env_groups": 2},
+                "logger": {"progress_bar": False, "checkpoint": False, "backend": "none"},
+            }
+        )
+    )
     assert s["frames"] == 4 * 32 * 5 * 2
 
 
-@pytest.mark.parametrize("bad, match", [
-    ({"collector": {"env_groups": 3}}, "env_groups=3 must divide"),
-    ({"collector": {"backend": "slurm"}}, "collector.backend='slurm'"),
-    ({"device": "tpu"}, "device='tpu'"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ({"collector": {"env_groups": 3}}, "env_groups=3 must divide"),
+        ({"collector": {"backend": "slurm"}}, "collector.backend='slurm'"),
+        ({"device": "tpu"}, "device='tpu'"),
+    ],
+)
 def test_bad_collector_and_device_settings_are_refused(tmp_path, bad, match):
     with pytest.raises(ValueError, match=match):
         atari_config({"variant": "a2c", "out_dir": str(tmp_path), **bad}).validate()
@@ -151,10 +209,17 @@ def test_out_of_range_actions_are_refused():
 
 
 def _tiny(tmp, device, **kw):
-    return atari_config({"variant": "a2c", "total_frames": 4 * 80, "out_dir": str(tmp), "device": device,
-                         "env": {"game": "Pong", "num_envs": 8, "num_threads": 1},
-                         "logger": {"progress_bar": False, "checkpoint": True, "backend": "none",
-                                    "log_every_frames": 160}, **kw})
+    return atari_config(
+        {
+            "variant": "a2c",
+            "total_frames": 4 * 80,
+            "out_dir": str(tmp),
+            "device": device,
+            "env": {"game": "Pong", "num_envs": 8, "num_threads": 1},
+            "logger": {"progress_bar": False, "checkpoint": True, "backend": "none", "log_every_frames": 160},
+            **kw,
+        }
+    )
 
 
 @cuda
@@ -187,8 +252,14 @@ def test_cuda_collector_matches_cpu_collector():
     try:
         for dev in ("cpu", "cuda"):
             envs = AtariCollector.make_envs("Breakout", 4, seed=3, num_threads=1)
-            col = AtariCollector(envs, policy.to(dev), frames_per_batch=80, total_frames=160, device=dev,
-                                 exploration_type=ExplorationType.DETERMINISTIC)
+            col = AtariCollector(
+                envs,
+                policy.to(dev),
+                frames_per_batch=80,
+                total_frames=160,
+                device=dev,
+                exploration_type=ExplorationType.DETERMINISTIC,
+            )
             outs[dev] = [b.cpu() for b in col]
     finally:
         torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = tf32
@@ -230,7 +301,9 @@ def test_files_that_are_not_atari_checkpoints_are_named(tmp_path):
         load_expert(tmp_path / "empty.pt")
     with pytest.raises(ValueError, match="random.pt is not a model.pt written by train_atari"):
         load_expert(tmp_path / "random.pt")
-    with pytest.raises(ValueError, match=r"taxi.pt is not an Atari checkpoint: it lacks \['n_actions', 'preprocessing'\]"):
+    with pytest.raises(
+        ValueError, match=r"taxi.pt is not an Atari checkpoint: it lacks \['n_actions', 'preprocessing'\]"
+    ):
         load_expert(tmp_path / "taxi.pt")
 
 

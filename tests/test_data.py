@@ -120,7 +120,9 @@ def test_demo_files_round_trip_and_validation(tmp_path, taxi):
 def test_authors_noise_mode_redraws_with_random_moves(taxi):
     model, policy, optimal = taxi
     d = tabular_state_pairs(model, policy)
-    n = apply_demo_noise(d, model, optimal, epsilon=0.3, epsilon_mode="authors", generator=torch.Generator().manual_seed(0))
+    n = apply_demo_noise(
+        d, model, optimal, epsilon=0.3, epsilon_mode="authors", generator=torch.Generator().manual_seed(0)
+    )
     bad = n["corrupted"]
     assert 100 < int(bad.sum()) < 200  # about 30 % of 500, drawn per pair
     assert set(n[EXPERT_ACTION_KEY][bad].tolist()) <= {0, 1, 2, 3}

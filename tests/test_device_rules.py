@@ -5,6 +5,7 @@ passes. Then every stage of every env family runs with ``device="cuda"`` under i
 tiny settings: zero breaches, and the device-to-host syncs per update reported (``-s``
 prints them) and bounded.
 """
+
 import json
 from pathlib import Path
 
@@ -14,20 +15,24 @@ import torch
 from torchrl_hybrid.testing import DeviceRuleCheck
 from torchrl_hybrid.utils.device import resolve_device
 
-
 # -- the check catches what CUDA refuses, and lets through what CUDA allows ------------------------
+
 
 def test_each_rule_catches_its_breach_and_names_the_line():
     with DeviceRuleCheck() as check:
         dev = check.device
         x = torch.ones(3, device=dev)
-        _ = x + torch.ones(3)                                     # a CPU vector meets a device tensor
-        torch.zeros(3)[x > 0]                                     # CPU tensor, device mask
+        _ = x + torch.ones(3)  # a CPU vector meets a device tensor
+        torch.zeros(3)[x > 0]  # CPU tensor, device mask
         torch.randint(3, (2,), device=dev, generator=torch.Generator())  # CPU generator, device op
-        x.numpy()                                                 # numpy() of a device tensor
+        x.numpy()  # numpy() of a device tensor
     rules = [b.rule for b in check.breaches]
-    assert rules == ["mixed devices", "CPU tensor indexed with a device index", "CPU torch.Generator on a device op",
-                     "numpy() of a device tensor"]
+    assert rules == [
+        "mixed devices",
+        "CPU tensor indexed with a device index",
+        "CPU torch.Generator on a device op",
+        "numpy() of a device tensor",
+    ]
     assert all(b.where.startswith("tests/test_device_rules.py:") for b in check.breaches)
     with DeviceRuleCheck(raise_on_breach=True) as check, pytest.raises(RuntimeError, match="mixed devices"):
         torch.ones(2, device=check.device) * torch.ones(2)
@@ -37,9 +42,9 @@ def test_what_cuda_allows_is_no_breach_and_syncs_are_counted():
     with DeviceRuleCheck() as check:
         dev = check.device
         x = torch.arange(6.0, device=dev)
-        y = x * torch.tensor(2.0)                # 0-dim CPU tensors are scalars on CUDA too
-        z = x[torch.tensor([0, 2])]              # a device tensor indexed with CPU indices
-        w = x.cpu() + torch.ones(6)              # an explicit copy: legal, and a sync
+        y = x * torch.tensor(2.0)  # 0-dim CPU tensors are scalars on CUDA too
+        z = x[torch.tensor([0, 2])]  # a device tensor indexed with CPU indices
+        w = x.cpu() + torch.ones(6)  # an explicit copy: legal, and a sync
         lin = torch.nn.Linear(6, 2).to(dev)
         lin(x).sum().backward()
         assert lin.weight.grad.device.type == dev.type and y.device.type == z.device.type == dev.type
@@ -51,14 +56,15 @@ def test_what_cuda_allows_is_no_breach_and_syncs_are_counted():
 def test_cuda_resolves_to_the_stand_in_only_inside_a_check():
     with DeviceRuleCheck() as check:
         assert resolve_device("cuda") == check.device
-        assert resolve_device("auto") == check.device                      # as on a GPU machine
-        assert resolve_device("auto", small_model=True).type == "cpu"      # tiny networks stay on the CPU
+        assert resolve_device("auto") == check.device  # as on a GPU machine
+        assert resolve_device("auto", small_model=True).type == "cpu"  # tiny networks stay on the CPU
     if not torch.cuda.is_available():
         with pytest.raises(ValueError, match="sees no CUDA GPU"):
             resolve_device("cuda")
 
 
 # -- every stage of every family, device=cuda, under the check ---------------------------------
+
 
 def _updates(out: Path) -> int:
     return int(json.loads((out / "summary.json").read_text())["config"]["total_frames"])
@@ -81,8 +87,12 @@ def _assert_clean(check: DeviceRuleCheck, updates: int, max_syncs_per_update: fl
 def _taxi(tmp_path, **kw):
     from torchrl_hybrid.trainers.taxi import config_from_dict
 
-    d = {"total_frames": 640, "out_dir": str(tmp_path), "device": "cuda",
-         "logger": {"log_every_frames": 320, "eval_episodes": 4, "final_eval_episodes": 4, "progress_bar": False}}
+    d = {
+        "total_frames": 640,
+        "out_dir": str(tmp_path),
+        "device": "cuda",
+        "logger": {"log_every_frames": 320, "eval_episodes": 4, "final_eval_episodes": 4, "progress_bar": False},
+    }
     for k, v in kw.items():
         if isinstance(v, dict):
             d.setdefault(k, {}).update(v)
@@ -118,19 +128,32 @@ def test_taxi_resume_and_every_variant_keep_the_device_rules(tmp_path):
 def test_cartpole_hybrid_keeps_the_device_rules(tmp_path):
     from torchrl_hybrid.trainers.taxi import train_taxi
 
-    cart = {"env": {"env_id": "CartPole-v1", "num_envs": 4, "max_episode_steps": 50}, "loss": {"n_steps": 5},
-            "d_state": 16, "d": 16, "encoder": {"hidden": 16},
-            "logger": {"log_every_frames": 200, "eval_episodes": 2, "final_eval_episodes": 2, "progress_bar": False}}
+    cart = {
+        "env": {"env_id": "CartPole-v1", "num_envs": 4, "max_episode_steps": 50},
+        "loss": {"n_steps": 5},
+        "d_state": 16,
+        "d": 16,
+        "encoder": {"hidden": 16},
+        "logger": {"log_every_frames": 200, "eval_episodes": 2, "final_eval_episodes": 2, "progress_bar": False},
+    }
     demo = {"rho": "uniform", "form": "trajectories", "num_trajectories": 2}
     train_taxi(_taxi(tmp_path / "expert", variant="a2c", total_frames=400, device="cpu", demo=demo, **cart))
     with DeviceRuleCheck() as check:
-        s = train_taxi(_taxi(tmp_path / "hybrid", variant="hybrid_dual", total_frames=400,
-                             demo={**demo, "expert": str(tmp_path / "expert" / "model.pt")}, **cart))
+        s = train_taxi(
+            _taxi(
+                tmp_path / "hybrid",
+                variant="hybrid_dual",
+                total_frames=400,
+                demo={**demo, "expert": str(tmp_path / "expert" / "model.pt")},
+                **cart,
+            )
+        )
     assert s["frames"] == 400
     _assert_clean(check, 400 // 20, 40, "CartPole hybrid_dual")
 
 
 # -- Atari --------------------------------------------------------------------------------------
+
 
 def _atari(tmp, **kw):
     from test_atari import tiny  # the Atari tests' tiny settings, here with device=cuda by default
@@ -145,29 +168,42 @@ def atari_demos(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("standin_pong")
     train_atari(_atari(tmp / "expert", variant="a2c", device="cpu"))
-    record_demos(tmp / "expert" / "model.pt", tmp / "demos", num_trajectories=3, num_envs=2, max_steps=20,
-                 progress=False, device="cpu")
+    record_demos(
+        tmp / "expert" / "model.pt",
+        tmp / "demos",
+        num_trajectories=3,
+        num_envs=2,
+        max_steps=20,
+        progress=False,
+        device="cpu",
+    )
     return tmp
 
 
 ATARI_UPDATES = 256 // 4 // (2 * 4)  # total_frames / frame skip / frames per batch
 
 
-@pytest.mark.parametrize("variant,kw", [
-    ("a2c", {}),
-    ("hybrid_dual", {}),
-    ("hybrid_mlp", {}),
-    ("bc_dual", {}),
-    ("hybrid_dual", {"idm_encoder": "own"}),
-    ("hybrid_dual", {"collector": {"backend": "torchrl"}}),
-    ("hybrid_dual", {"collector": {"backend": "atari", "keep_features": False}}),
-    ("hybrid_dual", {"demo": {"curriculum": False}}),
-])
+@pytest.mark.parametrize(
+    "variant,kw",
+    [
+        ("a2c", {}),
+        ("hybrid_dual", {}),
+        ("hybrid_mlp", {}),
+        ("bc_dual", {}),
+        ("hybrid_dual", {"idm_encoder": "own"}),
+        ("hybrid_dual", {"collector": {"backend": "torchrl"}}),
+        ("hybrid_dual", {"collector": {"backend": "atari", "keep_features": False}}),
+        ("hybrid_dual", {"demo": {"curriculum": False}}),
+    ],
+)
 def test_atari_variants_keep_the_device_rules(atari_demos, tmp_path, variant, kw):
     from torchrl_hybrid.trainers.atari import train_atari
 
     if variant != "a2c":
-        kw = {**kw, "demo": {"path": str(atari_demos / "demos"), "curriculum_frames_per_step": 64, **kw.get("demo", {})}}
+        kw = {
+            **kw,
+            "demo": {"path": str(atari_demos / "demos"), "curriculum_frames_per_step": 64, **kw.get("demo", {})},
+        }
     with DeviceRuleCheck() as check:
         s = train_atari(_atari(tmp_path, variant=variant, **kw))
     assert s["frames"] == 256
@@ -181,14 +217,28 @@ def test_atari_resume_recording_and_evaluation_keep_the_device_rules(atari_demos
     demo = {"path": str(atari_demos / "demos")}
     with DeviceRuleCheck() as check:
         train_atari(_atari(tmp_path / "run", variant="hybrid_dual", demo=demo, logger={"checkpoint": True}))
-        s = train_atari(_atari(tmp_path / "run", variant="hybrid_dual", demo=demo, total_frames=512, resume=True,
-                               logger={"checkpoint": True}))
+        s = train_atari(
+            _atari(
+                tmp_path / "run",
+                variant="hybrid_dual",
+                demo=demo,
+                total_frames=512,
+                resume=True,
+                logger={"checkpoint": True},
+            )
+        )
         assert s["resumed_from_frames"] == 256 and s["frames"] == 512
-        meta = record_demos(tmp_path / "run" / "model.pt", tmp_path / "demos", num_trajectories=2, num_envs=2,
-                            max_steps=8, progress=False, device="cuda")
+        meta = record_demos(
+            tmp_path / "run" / "model.pt",
+            tmp_path / "demos",
+            num_trajectories=2,
+            num_envs=2,
+            max_steps=8,
+            progress=False,
+            device="cuda",
+        )
         actor, ckpt = load_expert(tmp_path / "run" / "model.pt", "cuda")
-        ev = evaluate_atari(actor, "Pong", ckpt["preprocessing"], episodes=2, num_envs=2, max_steps=16,
-                            num_threads=1)
+        ev = evaluate_atari(actor, "Pong", ckpt["preprocessing"], episodes=2, num_envs=2, max_steps=16, num_threads=1)
     assert meta["num_trajectories"] == 2 and ev["episodes"] >= 0
     _assert_clean(check, 2 * ATARI_UPDATES, 60, "Atari resume, record_demos, evaluate_atari")
 
@@ -197,13 +247,20 @@ def test_atari_worker_collectors_keep_the_device_rules_and_the_learners_weights(
     """multi_sync workers run a CPU copy of the learner's policy; after every update the
     learner's weights reach them, so each batch's log-probabilities are the learner's own."""
     from tensordict import TensorDict
+
     from torchrl_hybrid.trainers.atari import build_atari
     from torchrl_hybrid.trainers.run import finish_run
 
     seen = []
     with DeviceRuleCheck() as check:
-        run = build_atari(_atari(tmp_path, variant="hybrid_dual", collector={"backend": "multi_sync", "workers": 2},
-                                 demo={"path": str(atari_demos / "demos")}))
+        run = build_atari(
+            _atari(
+                tmp_path,
+                variant="hybrid_dual",
+                collector={"backend": "multi_sync", "workers": 2},
+                demo={"path": str(atari_demos / "demos")},
+            )
+        )
 
         def same_policy(batch):
             with torch.no_grad():
@@ -221,6 +278,7 @@ def test_atari_worker_collectors_keep_the_device_rules_and_the_learners_weights(
 
 
 # -- each finding of the CUDA review, with its own test ----------------------------------------
+
 
 def test_feature_reuse_creates_its_index_tensors_on_the_frames_device():
     """The crash: AtariEncoder._shifted indexed CPU tensors with a device mask."""
@@ -258,8 +316,9 @@ def test_ray_workers_run_their_policy_on_the_cpu_unless_they_ask_for_gpus(monkey
     workers.make_worker_collector("ray", [lambda: None] * 2, policy, frames_per_batch=4, total_frames=8)
     assert (seen["env_device"], seen["policy_device"], seen["storing_device"]) == ("cpu", "cpu", "cpu")
     assert seen["remote_configs"] == {"num_cpus": 1} and seen["policy"] is policy
-    workers.make_worker_collector("ray", [lambda: None] * 2, policy, frames_per_batch=4, total_frames=8,
-                                  worker_gpus=0.5)
+    workers.make_worker_collector(
+        "ray", [lambda: None] * 2, policy, frames_per_batch=4, total_frames=8, worker_gpus=0.5
+    )
     assert seen["remote_configs"] == {"num_cpus": 1, "num_gpus": 0.5} and seen["policy_device"] == "cuda"
     with pytest.raises(ValueError, match="worker_gpus=0.5 is a Ray setting"):
         workers.worker_devices("multi_sync", 0.5)
@@ -303,8 +362,9 @@ def test_an_atari_checkpoint_restores_the_random_state(tmp_path):
     run.trainer.save_trainer(force_save=True)
     close_run(run)
     torch.manual_seed(999)  # what build_run does on resume: the seed's stream, until the checkpoint loads
-    run = build_atari(_atari(tmp_path, variant="a2c", device="cpu", total_frames=512, resume=True,
-                             logger={"checkpoint": True}))
+    run = build_atari(
+        _atari(tmp_path, variant="a2c", device="cpu", total_frames=512, resume=True, logger={"checkpoint": True})
+    )
     close_run(run)
     assert "random_state" in run.trainer._modules
     assert torch.equal(torch.get_rng_state(), state)
@@ -320,6 +380,7 @@ class _Spy:
         def spy(index):
             self.whole_reads += 1
             return get(index)
+
         self.storage.get = spy
 
 
@@ -330,8 +391,15 @@ def test_expert_samplers_read_one_entry_not_the_whole_buffer(kind):
     from torchrl_hybrid.data import CurriculumSampler, VisitedStateSampler, make_expert_buffer
 
     n = 50
-    demos = TensorDict({"observation": torch.arange(n) % 10, "next": {"observation": (torch.arange(n) + 1) % 10},
-                        "step": torch.arange(n) % 7, "trajectory": torch.arange(n) // 7}, [n])
+    demos = TensorDict(
+        {
+            "observation": torch.arange(n) % 10,
+            "next": {"observation": (torch.arange(n) + 1) % 10},
+            "step": torch.arange(n) % 7,
+            "trajectory": torch.arange(n) // 7,
+        },
+        [n],
+    )
     sampler = CurriculumSampler(k0=3, frames_per_step=100) if kind == "curriculum" else VisitedStateSampler(10)
     rb = make_expert_buffer(demos, sampler=sampler, batch_size=16)
     spy = _Spy(rb.storage)
@@ -358,8 +426,9 @@ def test_the_trainer_keeps_no_per_update_log_and_the_curve_reads_the_device_once
     rows = run.metrics.rows
     # TorchRL's auto_log_optim_steps kept every update's losses in _log_dict (20 entries a key); now
     # only the progress bar's values of each learning-curve row are there
-    assert len(rows) == 3 and all(len(v) <= len(rows) for v in run.trainer._log_dict.values()), \
-        {k: len(v) for k, v in run.trainer._log_dict.items()}
+    assert len(rows) == 3 and all(len(v) <= len(rows) for v in run.trainer._log_dict.values()), {
+        k: len(v) for k, v in run.trainer._log_dict.items()
+    }
     assert {"loss_objective", "grad_norm", "idm_accuracy"} <= set(rows[-1])
     assert all(isinstance(rows[-1][k], float) for k in ("loss_objective", "grad_norm"))
 
@@ -421,9 +490,16 @@ def test_a_checkpoint_from_before_the_random_state_resumes_with_a_warning(tmp_pa
     resume (not bit-exactly, said in a warning)."""
     import torchrl_hybrid.trainers.taxi as taxi
 
-    cart = {"env": {"env_id": "CartPole-v1", "num_envs": 4, "max_episode_steps": 50}, "loss": {"n_steps": 5},
-            "d_state": 16, "d": 16, "encoder": {"hidden": 16}, "variant": "a2c", "device": "cpu",
-            "demo": {"rho": "uniform"}}
+    cart = {
+        "env": {"env_id": "CartPole-v1", "num_envs": 4, "max_episode_steps": 50},
+        "loss": {"n_steps": 5},
+        "d_state": 16,
+        "d": 16,
+        "encoder": {"hidden": 16},
+        "variant": "a2c",
+        "device": "cpu",
+        "demo": {"rho": "uniform"},
+    }
     with monkeypatch.context() as m:  # a checkpoint as the code before this hook wrote it
         m.setattr(taxi.GymFamily, "register_late_hooks", lambda self, run: None)
         taxi.train_taxi(_taxi(tmp_path, total_frames=400, **cart))
@@ -432,11 +508,18 @@ def test_a_checkpoint_from_before_the_random_state_resumes_with_a_warning(tmp_pa
     assert s["resumed_from_frames"] == 400 and s["frames"] == 800
 
 
-@pytest.mark.parametrize("kw", [
-    {"variant": "hybrid_dual", "optim": {"clip": "per_term"}, "demo": {"rho": "uniform"},
-     "loss": {"bc_prior_floor": 0.05, "bc_updates": 2, "idm_updates": 1, "explore_envs": 4}},
-    {"variant": "hybrid_true", "rl": "ppo", "loss": {"bc_updates": 1, "explore_envs": 4}},
-])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {
+            "variant": "hybrid_dual",
+            "optim": {"clip": "per_term"},
+            "demo": {"rho": "uniform"},
+            "loss": {"bc_prior_floor": 0.05, "bc_updates": 2, "idm_updates": 1, "explore_envs": 4},
+        },
+        {"variant": "hybrid_true", "rl": "ppo", "loss": {"bc_updates": 1, "explore_envs": 4}},
+    ],
+)
 def test_the_balance_label_and_ppo_options_keep_the_device_rules(tmp_path, kw):
     from torchrl_hybrid.trainers.taxi import train_taxi
 

@@ -1,4 +1,5 @@
 """Nothing lost, nothing silently wrong: out_dir rules, locks, resume checks, damaged files."""
+
 import json
 import os
 import signal
@@ -9,27 +10,42 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 from tensordict import TensorDict
 
 from torchrl_hybrid.data import load_demos, save_demos
 from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
 from torchrl_hybrid.utils.files import check_memmap_folder, prepare_out_dir
-from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def tiny(out, **kw):
-    d = {"total_frames": 640, "out_dir": str(out), "device": TEST_DEVICE,
-         "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8,
-                    "progress_bar": False, "backend": "csv"}}
+    d = {
+        "total_frames": 640,
+        "out_dir": str(out),
+        "device": TEST_DEVICE,
+        "logger": {
+            "log_every_frames": 320,
+            "eval_episodes": 8,
+            "final_eval_episodes": 8,
+            "progress_bar": False,
+            "backend": "csv",
+        },
+    }
     d.update(kw)
     return config_from_dict(d)
 
 
 def _demos(path):
-    td = TensorDict({"observation": torch.arange(6), ("next", "observation"): torch.arange(1, 7),
-                     "step": torch.zeros(6, dtype=torch.long)}, [6])
+    td = TensorDict(
+        {
+            "observation": torch.arange(6),
+            ("next", "observation"): torch.arange(1, 7),
+            "step": torch.zeros(6, dtype=torch.long),
+        },
+        [6],
+    )
     return save_demos(td, path, {"env_id": "Taxi-v4"})
 
 
@@ -73,8 +89,18 @@ def test_finished_run_is_not_overwritten_unless_asked(tmp_path):
 
 
 def test_resume_over_results_without_a_checkpoint_is_refused(tmp_path):
-    train_taxi(tiny(tmp_path, logger={"checkpoint": False, "progress_bar": False, "eval_episodes": 8,
-                                      "final_eval_episodes": 8, "log_every_frames": 320}))
+    train_taxi(
+        tiny(
+            tmp_path,
+            logger={
+                "checkpoint": False,
+                "progress_bar": False,
+                "eval_episodes": 8,
+                "final_eval_episodes": 8,
+                "log_every_frames": 320,
+            },
+        )
+    )
     with pytest.raises(ValueError, match="resume=true but .* has no checkpoint/ to resume from"):
         train_taxi(tiny(tmp_path, resume=True, total_frames=1280))
     with pytest.raises(ValueError, match="contradict"):
@@ -94,8 +120,13 @@ def test_taxi_resumes_and_refuses_changed_settings(tmp_path, capsys):
     with pytest.raises(ValueError, match=r"other settings for \['optim.lr'\] \(optim.lr: 0.001 -> 0.01"):
         train_taxi(tiny(tmp_path, resume=True, total_frames=1280, optim={"lr": 0.01}))
     capsys.readouterr()
-    logger = {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": True,
-              "backend": "csv"}
+    logger = {
+        "log_every_frames": 320,
+        "eval_episodes": 8,
+        "final_eval_episodes": 8,
+        "progress_bar": True,
+        "backend": "csv",
+    }
     s = train_taxi(tiny(tmp_path, resume=True, total_frames=1280, logger=logger))
     assert s["frames"] == 1280 and s["resumed_from_frames"] == 640
     bar = capsys.readouterr().err.split("continuing from 640 frames", 1)[1]
@@ -118,9 +149,17 @@ def test_resume_refuses_a_damaged_checkpoint_or_missing_settings(tmp_path):
 
 def test_a_killed_run_resumes_from_its_checkpoint(tmp_path):
     out = tmp_path / "run"
-    cmd = [sys.executable, str(ROOT / "recipes" / "taxi.py"), f"out_dir={out}", "device=cpu", "total_frames=8000",
-           "logger.progress_bar=false", "logger.log_every_frames=1000", "logger.eval_episodes=8",
-           "logger.final_eval_episodes=8"]
+    cmd = [
+        sys.executable,
+        str(ROOT / "recipes" / "taxi.py"),
+        f"out_dir={out}",
+        "device=cpu",
+        "total_frames=8000",
+        "logger.progress_bar=false",
+        "logger.log_every_frames=1000",
+        "logger.eval_episodes=8",
+        "logger.final_eval_episodes=8",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 240
     while not (out / "checkpoint" / "manifest.json").exists():

@@ -9,9 +9,11 @@ import pytest
 from torchrl_hybrid.experiments.gym_compare import GymCompareConfig, run_gym_compare
 
 ROOT = Path(__file__).resolve().parents[1]
-FROZEN = {"env": {"env_id": "FrozenLake-v1", "kwargs": {"map_name": "8x8", "is_slippery": False},
-                  "max_episode_steps": 100},
-          "total_frames": 640, "logger": {"log_every_frames": 320, "eval_episodes": 4, "final_eval_episodes": 4}}
+FROZEN = {
+    "env": {"env_id": "FrozenLake-v1", "kwargs": {"map_name": "8x8", "is_slippery": False}, "max_episode_steps": 100},
+    "total_frames": 640,
+    "logger": {"log_every_frames": 320, "eval_episodes": 4, "final_eval_episodes": 4},
+}
 
 
 def test_compare_runs_every_variant_and_seed_then_tabulates_with_intervals(tmp_path, capsys):
@@ -34,8 +36,14 @@ def test_compare_runs_every_variant_and_seed_then_tabulates_with_intervals(tmp_p
 
 
 def test_compare_command_line_refuses_unknown_options(tmp_path):
-    cmd = [sys.executable, str(ROOT / "recipes" / "compare.py"), "--config-name", "frozenlake8x8",
-           f"out_dir={tmp_path}", "+compare.nope=1"]
+    cmd = [
+        sys.executable,
+        str(ROOT / "recipes" / "compare.py"),
+        "--config-name",
+        "frozenlake8x8",
+        f"out_dir={tmp_path}",
+        "+compare.nope=1",
+    ]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "unknown compare option(s) ['nope']" in r.stderr
 
@@ -49,9 +57,14 @@ def test_frames_to_the_expert_are_measured_from_the_random_policy_up():
 
 
 def test_named_and_own_arms_run_with_their_settings_and_against_their_base(tmp_path):
-    cfg = GymCompareConfig(base=FROZEN, variants=["hybrid_dual", "hybrid_dual_clip_apart", "mine"], seeds=[0, 1],
-                           arms={"mine": {"variant": "hybrid_dual", "base": "hybrid_dual", "demo": {"batch_size": 8}}},
-                           out_dir=str(tmp_path), workers=1)
+    cfg = GymCompareConfig(
+        base=FROZEN,
+        variants=["hybrid_dual", "hybrid_dual_clip_apart", "mine"],
+        seeds=[0, 1],
+        arms={"mine": {"variant": "hybrid_dual", "base": "hybrid_dual", "demo": {"batch_size": 8}}},
+        out_dir=str(tmp_path),
+        workers=1,
+    )
     result = run_gym_compare(cfg)
     settings = {a: json.loads((tmp_path / f"{a}_s0" / "config.json").read_text()) for a in cfg.variants}
     assert settings["hybrid_dual_clip_apart"]["optim"]["clip"] == "per_term"
@@ -74,19 +87,42 @@ def test_headline_states_both_goals_from_each_comparisons_numbers(tmp_path):
     from torchrl_hybrid.experiments.headline import headline_markdown, headline_rows, update_readme_block
 
     def arm(variant, auc, frames, base=None):
-        return {"variant": variant, "base": base, "seeds": list(range(len(auc))), "auc": auc, "final": auc,
-                "frames_to_reach": frames, "budget": 100_000.0, "idm_accuracy_expert_end": [None] * len(auc),
-                "entropy_end": [None] * len(auc)}
+        return {
+            "variant": variant,
+            "base": base,
+            "seeds": list(range(len(auc))),
+            "auc": auc,
+            "final": auc,
+            "frames_to_reach": frames,
+            "budget": 100_000.0,
+            "idm_accuracy_expert_end": [None] * len(auc),
+            "entropy_end": [None] * len(auc),
+        }
 
     (tmp_path / "env").mkdir()
-    (tmp_path / "env" / "summary.json").write_text(json.dumps({
-        "env_id": "X", "expert_return": 500.0, "random_return": 20.0, "threshold": 452.0, "reach_share": 0.9,
-        "reference": "a2c", "arms": {
-            "a2c": arm("a2c", [100, 110, 120, 105, 115], [80_000, 90_000, None, 70_000, 85_000]),
-            "hybrid_dual": arm("hybrid_dual", [105, 112, 118, 100, 111], [None] * 5),
-            "hybrid_dual_utd4": arm("hybrid_dual", [300, 310, 290, 305, 295], [30_000, 35_000, 40_000, 30_000, 32_000],
-                                    base="hybrid_dual"),
-            "hybrid_true": arm("hybrid_true", [290, 320, 300, 310, 300], [30_000] * 5)}}))
+    (tmp_path / "env" / "summary.json").write_text(
+        json.dumps(
+            {
+                "env_id": "X",
+                "expert_return": 500.0,
+                "random_return": 20.0,
+                "threshold": 452.0,
+                "reach_share": 0.9,
+                "reference": "a2c",
+                "arms": {
+                    "a2c": arm("a2c", [100, 110, 120, 105, 115], [80_000, 90_000, None, 70_000, 85_000]),
+                    "hybrid_dual": arm("hybrid_dual", [105, 112, 118, 100, 111], [None] * 5),
+                    "hybrid_dual_utd4": arm(
+                        "hybrid_dual",
+                        [300, 310, 290, 305, 295],
+                        [30_000, 35_000, 40_000, 30_000, 32_000],
+                        base="hybrid_dual",
+                    ),
+                    "hybrid_true": arm("hybrid_true", [290, 320, 300, 310, 300], [30_000] * 5),
+                },
+            }
+        )
+    )
     (row,) = headline_rows({"X": tmp_path / "env"})
     assert row["best"]["arm"] == "hybrid_dual_utd4"  # the best arm with inferred labels, not the oracle
     assert row["base_frames"] == (80_000 + 90_000 + 100_000 + 70_000 + 85_000) / 5  # never reached: the budget
@@ -100,8 +136,12 @@ def test_headline_states_both_goals_from_each_comparisons_numbers(tmp_path):
     assert readme.read_text().startswith("intro\n<!-- headline:start -->\n| env |") and "old" not in readme.read_text()
     # a PPO base beside: its own row, each arm held against the base it runs on (its rl)
     summary = json.loads((tmp_path / "env" / "summary.json").read_text())
-    summary["arms"].update({"ppo": {**arm("a2c", [400] * 5, [20_000] * 5), "rl": "ppo"},
-                            "hybrid_dual_ppo": {**arm("hybrid_dual", [410] * 5, [9_000] * 5, "ppo"), "rl": "ppo"}})
+    summary["arms"].update(
+        {
+            "ppo": {**arm("a2c", [400] * 5, [20_000] * 5), "rl": "ppo"},
+            "hybrid_dual_ppo": {**arm("hybrid_dual", [410] * 5, [9_000] * 5, "ppo"), "rl": "ppo"},
+        }
+    )
     (tmp_path / "env" / "summary.json").write_text(json.dumps(summary))
     a2c_row, ppo_row = headline_rows({"X": tmp_path / "env"})
     assert (a2c_row["env"], ppo_row["env"]) == ("X, A2C", "X, PPO")

@@ -1,5 +1,6 @@
 """The local launcher (worker processes, no Ray): a worker killed in the middle of a job
 stops the study with an error that says how to continue, instead of a wait forever."""
+
 import os
 import signal
 
@@ -10,6 +11,7 @@ from torchrl_hybrid.utils.launch import run_jobs
 
 def _die_on_two(x):
     import time
+
     if x == 2:
         os.kill(os.getpid(), signal.SIGKILL)  # what the kernel's OOM killer does
     time.sleep(0.1)
@@ -27,8 +29,10 @@ def _raise(x):
 @pytest.fixture
 def alarm():
     """Fails the test (instead of hanging the suite) if run_jobs waits for a dead worker."""
+
     def boom(*_):
         raise TimeoutError("run_jobs waited 60 s for a killed worker")
+
     old = signal.signal(signal.SIGALRM, boom)
     signal.alarm(60)
     yield
@@ -38,7 +42,13 @@ def alarm():
 
 def test_local_workers_give_every_result_once():
     assert sorted(run_jobs(_square, list(range(5)), launcher="local", workers=2)) == [0, 1, 4, 9, 16]
-    assert sorted(run_jobs(_square, list(range(5)), launcher="local", workers=2, fresh_process=True)) == [0, 1, 4, 9, 16]
+    assert sorted(run_jobs(_square, list(range(5)), launcher="local", workers=2, fresh_process=True)) == [
+        0,
+        1,
+        4,
+        9,
+        16,
+    ]
 
 
 def test_a_job_error_reaches_the_caller():
@@ -74,15 +84,24 @@ def test_a_ray_cluster_that_fails_says_to_run_the_same_command_again(monkeypatch
         raise RaySystemError("no cluster to cancel on")
 
     fake = types.SimpleNamespace(
-        exceptions=types.SimpleNamespace(LocalRayletDiedError=LocalRayletDiedError, RaySystemError=RaySystemError,
-                                         WorkerCrashedError=type("W", (Exception,), {}),
-                                         NodeDiedError=type("N", (Exception,), {}),
-                                         OutOfMemoryError=type("O", (Exception,), {})),
-        remote=lambda **kw: (lambda f: types.SimpleNamespace(remote=lambda fn, job: ("ref", job))),
-        wait=wait, cancel=cancel, shutdown=lambda: shut.append(True))
+        exceptions=types.SimpleNamespace(
+            LocalRayletDiedError=LocalRayletDiedError,
+            RaySystemError=RaySystemError,
+            WorkerCrashedError=type("W", (Exception,), {}),
+            NodeDiedError=type("N", (Exception,), {}),
+            OutOfMemoryError=type("O", (Exception,), {}),
+        ),
+        remote=lambda **kw: lambda f: types.SimpleNamespace(remote=lambda fn, job: ("ref", job)),
+        wait=wait,
+        cancel=cancel,
+        shutdown=lambda: shut.append(True),
+    )
     monkeypatch.setattr(launch, "_ray", lambda: fake)
     monkeypatch.setattr(launch, "init_ray", lambda address, num_cpus: True)
-    with pytest.raises(RuntimeError, match=r"the Ray cluster failed \(LocalRayletDiedError: the raylet of this node "
-                                           r"died\); the study stops here. Run the same command again to continue"):
+    with pytest.raises(
+        RuntimeError,
+        match=r"the Ray cluster failed \(LocalRayletDiedError: the raylet of this node "
+        r"died\); the study stops here. Run the same command again to continue",
+    ):
         list(run_jobs(_square, [1, 2], launcher="ray"))
     assert cancelled and shut == [True]

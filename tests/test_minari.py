@@ -1,4 +1,5 @@
 """State-only demos from a local Minari dataset (built here; nothing is downloaded)."""
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -30,9 +31,18 @@ def _record(env_id: str, dataset_id: str, policy, episodes: int, max_steps: int)
             o, r, t, tr, _ = env.step(a)
             obs.append(o), acts.append(a), rews.append(r), terms.append(t), truncs.append(tr)
             done = t or tr
-        buffers.append(EpisodeBuffer(id=ep, seed=ep, observations=np.stack(obs), actions=np.array(acts),
-                                     rewards=np.array(rews), terminations=np.array(terms),
-                                     truncations=np.array(truncs), infos={}))
+        buffers.append(
+            EpisodeBuffer(
+                id=ep,
+                seed=ep,
+                observations=np.stack(obs),
+                actions=np.array(acts),
+                rewards=np.array(rews),
+                terminations=np.array(terms),
+                truncations=np.array(truncs),
+                infos={},
+            )
+        )
         recorded.append((np.stack(obs), np.array(acts)))
     minari.create_dataset_from_buffers(dataset_id, buffers, env=env, algorithm_name="test")
     env.close()
@@ -76,29 +86,49 @@ def test_a_missing_dataset_names_the_cache_and_downloads_nothing(cache):
 
 def test_the_taxi_agent_learns_from_a_minari_dataset(cache, tmp_path):
     _record("Taxi-v4", "taxi/expert-v0", _taxi_expert(), 20, 50)
-    cfg = config_from_dict({"total_frames": 640, "out_dir": str(tmp_path / "run"),
-                            "demo": {"minari": "taxi/expert-v0"},
-                            "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8,
-                                       "progress_bar": False}})
+    cfg = config_from_dict(
+        {
+            "total_frames": 640,
+            "out_dir": str(tmp_path / "run"),
+            "demo": {"minari": "taxi/expert-v0"},
+            "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": False},
+        }
+    )
     s = train_taxi(cfg)
     assert s["frames"] == 640 and s["idm_accuracy_expert"] is None  # no true actions: nothing to score against
     # demos recorded on another env are refused, and so are two demo sources at once
     _record("CliffWalking-v1", "cliff/random-v0", lambda s: 0, 1, 20)
     with pytest.raises(ValueError, match="demos are for CliffWalking-v1, this run plays Taxi-v4|states outside"):
-        train_taxi(config_from_dict({"out_dir": str(tmp_path / "x"), "total_frames": 640,
-                                     "demo": {"minari": "cliff/random-v0"}}))
+        train_taxi(
+            config_from_dict(
+                {"out_dir": str(tmp_path / "x"), "total_frames": 640, "demo": {"minari": "cliff/random-v0"}}
+            )
+        )
     with pytest.raises(ValueError, match="choose one demo source"):
-        train_taxi(config_from_dict({"out_dir": str(tmp_path / "y"), "total_frames": 640,
-                                     "demo": {"minari": "taxi/expert-v0", "path": str(tmp_path)}}))
+        train_taxi(
+            config_from_dict(
+                {
+                    "out_dir": str(tmp_path / "y"),
+                    "total_frames": 640,
+                    "demo": {"minari": "taxi/expert-v0", "path": str(tmp_path)},
+                }
+            )
+        )
 
 
 def test_cartpole_hybrid_from_a_minari_dataset(cache, tmp_path):
     _record("CartPole-v1", "cartpole/random-v0", lambda o: int(o[2] > 0), 4, 500)  # a simple pole-following rule
-    cfg = config_from_dict({"total_frames": 800, "out_dir": str(tmp_path / "run"), "d_state": 16, "d": 16,
-                            "env": {"env_id": "CartPole-v1", "max_episode_steps": 500},
-                            "demo": {"minari": "cartpole/random-v0", "rho": "uniform"},
-                            "loss": {"n_steps": 5},
-                            "logger": {"log_every_frames": 400, "eval_episodes": 2, "final_eval_episodes": 2,
-                                       "progress_bar": False}})
+    cfg = config_from_dict(
+        {
+            "total_frames": 800,
+            "out_dir": str(tmp_path / "run"),
+            "d_state": 16,
+            "d": 16,
+            "env": {"env_id": "CartPole-v1", "max_episode_steps": 500},
+            "demo": {"minari": "cartpole/random-v0", "rho": "uniform"},
+            "loss": {"n_steps": 5},
+            "logger": {"log_every_frames": 400, "eval_episodes": 2, "final_eval_episodes": 2, "progress_bar": False},
+        }
+    )
     s = train_taxi(cfg)
     assert s["frames"] == 800 and s["optimal_return"] is None  # no expert policy to evaluate

@@ -1,5 +1,6 @@
 import copy
 import pickle
+
 import pytest
 import torch
 

@@ -12,8 +12,11 @@ from torchrl_hybrid.trainers import VARIANTS, make_hybrid_loss
 
 def transitions(n=12, S=7, A=4):
     return TensorDict(
-        {"observation": torch.randint(S, (n,)), "action": torch.randint(A, (n,)),
-         ("next", "observation"): torch.randint(S, (n,))},
+        {
+            "observation": torch.randint(S, (n,)),
+            "action": torch.randint(A, (n,)),
+            ("next", "observation"): torch.randint(S, (n,)),
+        },
         [n],
     )
 
@@ -98,15 +101,29 @@ def test_hybrid_loss_composes_a2c_idm_and_bc():
     idm = DualInverseDynamics(OneHotEncoder(7), 4, d_state=5, d=6)
     loss = make_hybrid_loss(VARIANTS["hybrid_dual"], actor, critic, idm)
     agent = TensorDict(
-        {"observation": torch.randint(7, (3, 2)), "action": torch.randint(4, (3, 2)),
-         "next": {"observation": torch.randint(7, (3, 2)), "reward": torch.randn(3, 2, 1),
-                  "done": torch.zeros(3, 2, 1, dtype=torch.bool), "terminated": torch.zeros(3, 2, 1, dtype=torch.bool)}},
+        {
+            "observation": torch.randint(7, (3, 2)),
+            "action": torch.randint(4, (3, 2)),
+            "next": {
+                "observation": torch.randint(7, (3, 2)),
+                "reward": torch.randn(3, 2, 1),
+                "done": torch.zeros(3, 2, 1, dtype=torch.bool),
+                "terminated": torch.zeros(3, 2, 1, dtype=torch.bool),
+            },
+        },
         [3, 2],
     )
     expert = transitions(5).exclude("action")
     out = loss(TensorDict({"agent": agent, "expert": expert}, []))
-    assert {"loss_objective", "loss_critic", "loss_entropy", "loss_inverse", "loss_action_embedding",
-            "loss_state_embedding", "loss_bc"} <= set(out.keys())
+    assert {
+        "loss_objective",
+        "loss_critic",
+        "loss_entropy",
+        "loss_inverse",
+        "loss_action_embedding",
+        "loss_state_embedding",
+        "loss_bc",
+    } <= set(out.keys())
     params = list(loss.parameters())
     assert len(params) == len({id(p) for p in params})
     n_expected = sum(p.numel() for m in (actor, critic, idm) for p in m.parameters())
@@ -135,8 +152,10 @@ def test_bc_soft_labels_are_the_cross_entropy_to_the_inverse_model():
     soft = torch.tensor([[0.5, 0.5, 0.0, 0.0]])
     for _ in range(300):
         logits = actor.get_dist(pair.clone()).logits
-        l = -(soft * logits.log_softmax(-1)).sum()
-        opt.zero_grad(); l.backward(); opt.step()
+        loss = -(soft * logits.log_softmax(-1)).sum()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
     probs = actor.get_dist(pair.clone()).probs[0]
     assert abs(float(probs[0] - probs[1])) < 0.02 and float(probs[:2].sum()) > 0.95
 
@@ -235,10 +254,15 @@ def test_delayed_coefficient_hook_anneals_the_bc_weight_linearly_to_zero():
 
 def test_coefficients_are_schedulable_buffers_and_losses_are_not_functional():
     from torchrl_hybrid.objectives import PolicyEntropyLoss
+
     actor, _ = make_tabular_actor_critic(7, 4)
     idm = DualInverseDynamics(OneHotEncoder(7), 4, d_state=5, d=6)
-    losses = {"action_coeff": DualInverseDynamicsLoss(idm), "embedding_coeff": DualInverseDynamicsLoss(idm),
-              "bc_coeff": ExpertBCLoss(actor, idm), "entropy_coeff": PolicyEntropyLoss(actor)}
+    losses = {
+        "action_coeff": DualInverseDynamicsLoss(idm),
+        "embedding_coeff": DualInverseDynamicsLoss(idm),
+        "bc_coeff": ExpertBCLoss(actor, idm),
+        "entropy_coeff": PolicyEntropyLoss(actor),
+    }
     for name, loss in losses.items():
         buf = getattr(loss, name)
         setattr(loss, name, 0.25)  # TorchRL's convention: an in-place update of the buffer
@@ -251,6 +275,7 @@ def test_coefficients_are_schedulable_buffers_and_losses_are_not_functional():
 
 def test_hooks_refuse_a_coefficient_that_is_not_schedulable():
     from torchrl.objectives import LossModule
+
     from torchrl_hybrid.trainers.hooks import DelayedCoefficientHook
 
     class Plain(LossModule):
@@ -270,6 +295,7 @@ def test_hooks_refuse_a_coefficient_that_is_not_schedulable():
 
 def test_a_tensordict_module_wrapped_inverse_model_is_accepted_and_names_its_keys():
     from tensordict.nn import TensorDictModule
+
     idm = DualInverseDynamics(OneHotEncoder(7), 4, d_state=5, d=6)
     wrapped = TensorDictModule(idm, in_keys=["s", "s_next"], out_keys=["idm_logits"])
     td = transitions()
@@ -302,8 +328,11 @@ def test_prior_corrected_labels_undo_the_inverse_models_echo_of_the_agents_polic
     with torch.no_grad():
         head.weight.zero_()
         head.bias.copy_(pi.log())
-    actor = ProbabilisticActor(TensorDictModule(head, in_keys=["observation"], out_keys=["logits"]),
-                               in_keys=["logits"], distribution_class=torch.distributions.Categorical)
+    actor = ProbabilisticActor(
+        TensorDictModule(head, in_keys=["observation"], out_keys=["logits"]),
+        in_keys=["logits"],
+        distribution_class=torch.distributions.Categorical,
+    )
 
     class Echo(InverseDynamicsModel):  # P_i = P(s'|s,a) pi(a|s), normalised
         def __init__(self):
@@ -349,8 +378,12 @@ def test_explorer_slots_give_the_inverse_model_every_action_and_stay_out_of_the_
     with torch.no_grad():
         head.weight.zero_()
         head.bias.copy_(torch.tensor([20.0, 0.0, 0.0]))  # always action 0
-    actor = ProbabilisticActor(TensorDictModule(head, in_keys=["x"], out_keys=["logits"]), in_keys=["logits"],
-                               distribution_class=torch.distributions.Categorical, return_log_prob=True)
+    actor = ProbabilisticActor(
+        TensorDictModule(head, in_keys=["x"], out_keys=["logits"]),
+        in_keys=["logits"],
+        distribution_class=torch.distributions.Categorical,
+        return_log_prob=True,
+    )
     explorer = ExplorerSlots(actor, n_actions=3, n_explorers=4)
 
     def batch(policy, n_envs=8, steps=64):
@@ -358,8 +391,15 @@ def test_explorer_slots_give_the_inverse_model_every_action_and_stay_out_of_the_
         td = TensorDict({"x": torch.zeros(n_envs, steps, 1)}, [n_envs, steps])
         out = torch.stack([policy(td[:, t].clone()) for t in range(steps)], 1)
         a = out["action"]
-        return TensorDict({"observation": s, "action": a, ("next", "observation"): (s + a) % 10,
-                           **({"explore": out["explore"]} if "explore" in out.keys() else {})}, [n_envs, steps])
+        return TensorDict(
+            {
+                "observation": s,
+                "action": a,
+                ("next", "observation"): (s + a) % 10,
+                **({"explore": out["explore"]} if "explore" in out.keys() else {}),
+            },
+            [n_envs, steps],
+        )
 
     torch.manual_seed(0)
     td = batch(explorer)
@@ -383,8 +423,8 @@ def test_explorer_slots_give_the_inverse_model_every_action_and_stay_out_of_the_
         a = torch.arange(30) // 10  # every action, each state
         return float((idm.infer(s, (s + a) % 10) == a).float().mean())
 
-    assert labels_after_training(actor) < 0.4       # the echo: action 0 everywhere (1/3 right)
-    assert labels_after_training(explorer) > 0.95   # every action told apart
+    assert labels_after_training(actor) < 0.4  # the echo: action 0 everywhere (1/3 right)
+    assert labels_after_training(explorer) > 0.95  # every action told apart
     # the RL loss's input drops the explorer rows, whole env rows so the returns stay per trajectory
     hybrid = HybridLoss(PolicyEntropyLossStub(), None, None)
     hybrid.forward_parts(TensorDict({"agent": td, "expert": TensorDict({}, [0])}, []))
@@ -402,14 +442,26 @@ def test_a_minibatch_of_explorer_transitions_only_gives_a_zero_rl_loss_with_no_g
 
     torch.manual_seed(0)
     actor_net = torch.nn.Linear(4, 3)
-    actor = ProbabilisticActor(TensorDictModule(actor_net, ["observation"], ["logits"]), in_keys=["logits"],
-                               distribution_class=torch.distributions.Categorical, return_log_prob=True)
+    actor = ProbabilisticActor(
+        TensorDictModule(actor_net, ["observation"], ["logits"]),
+        in_keys=["logits"],
+        distribution_class=torch.distributions.Categorical,
+        return_log_prob=True,
+    )
     critic = ValueOperator(torch.nn.Linear(4, 1), in_keys=["observation"])
     ppo = ClipPPOLoss(actor, critic)
     n = 8
-    td = TensorDict({"observation": torch.randn(n, 4), "action": torch.randint(0, 3, (n,)),
-                     "action_log_prob": torch.full((n,), -1.1), "advantage": torch.randn(n, 1),
-                     "value_target": torch.randn(n, 1), "explore": torch.ones(n, 1, dtype=torch.bool)}, [n])
+    td = TensorDict(
+        {
+            "observation": torch.randn(n, 4),
+            "action": torch.randint(0, 3, (n,)),
+            "action_log_prob": torch.full((n,), -1.1),
+            "advantage": torch.randn(n, 1),
+            "value_target": torch.randn(n, 1),
+            "explore": torch.ones(n, 1, dtype=torch.bool),
+        },
+        [n],
+    )
     parts = HybridLoss(ppo, None, None).forward_parts(TensorDict({"agent": td, "expert": TensorDict({}, [0])}, []))
     rl = parts["rl"]
     assert {"loss_objective", "loss_critic", "loss_entropy"} <= set(rl.keys())

@@ -1,4 +1,5 @@
 """The README's code examples run as written (with fewer frames)."""
+
 import re
 from pathlib import Path
 
@@ -10,7 +11,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 def _readme_block(marker: str = "<!-- tested: tests/test_readme.py runs this block -->") -> str:
     text = README.read_text()
     assert marker in text, f"README.md lost the block marked {marker}"
-    block = re.search(r"```python\n(.*?)```", text[text.index(marker):], re.S)
+    block = re.search(r"```python\n(.*?)```", text[text.index(marker) :], re.S)
     return block.group(1)
 
 
@@ -30,4 +31,5 @@ def test_readme_ppo_in_a_torchrl_trainer_with_the_hybrid_losses():
     assert [g["name"] for g in optimizer.param_groups] == ["policy", "inverse_model"]
     # the inverse model learned from the agent's own transitions (chance: 1/6)
     from torchrl_hybrid.trainers import inverse_model_accuracy
+
     assert inverse_model_accuracy(idm, scope["demos"]) > 0.4

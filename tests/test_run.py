@@ -1,19 +1,25 @@
 """The one run assembly (torchrl_hybrid/trainers/run.py): a new env family plugs in,
 resuming across added settings, and library calls that leave process-wide settings alone."""
+
 import json
 
 import pytest
 import torch
+from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 from torchrl_hybrid.trainers.run import EnvFamily, Run, build_run, train_run
 from torchrl_hybrid.trainers.taxi import GymFamily, TaxiConfig, build_taxi, config_from_dict, train_taxi
 from torchrl_hybrid.utils.process import configure_worker
-from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 
 def tiny(out, **top) -> TaxiConfig:
-    d = {"total_frames": 640, "out_dir": str(out), "threads": 1, "device": TEST_DEVICE,
-         "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": False}}
+    d = {
+        "total_frames": 640,
+        "out_dir": str(out),
+        "threads": 1,
+        "device": TEST_DEVICE,
+        "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": False},
+    }
     d.update(top)
     return config_from_dict(d)
 
@@ -95,8 +101,10 @@ def test_library_calls_leave_the_process_settings_alone(tmp_path):
         torch.set_num_threads(before)
 
 
-@pytest.mark.parametrize("name, cls", [("taxi", "TaxiConfig"), ("atari", "AtariConfig"), ("cartpole", "TaxiConfig"),
-                                       ("atari_expert", "AtariConfig")])
+@pytest.mark.parametrize(
+    "name, cls",
+    [("taxi", "TaxiConfig"), ("atari", "AtariConfig"), ("cartpole", "TaxiConfig"), ("atari_expert", "AtariConfig")],
+)
 def test_recipe_configs_are_the_dataclass_schemas(name, cls):
     """Each default is written once: the recipes' YAML sets only out_dir (and a preset's
     changes) over the ConfigStore schema, which Hydra checks names and types against."""
@@ -104,8 +112,8 @@ def test_recipe_configs_are_the_dataclass_schemas(name, cls):
     from pathlib import Path
 
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
     from hydra.errors import ConfigCompositionException
+    from omegaconf import OmegaConf
     from omegaconf.errors import ValidationError
 
     from torchrl_hybrid.configs import register_configs
@@ -120,9 +128,12 @@ def test_recipe_configs_are_the_dataclass_schemas(name, cls):
         d.pop("hydra", None)
         default = dataclasses.asdict(schema())
         changed = {k for k in default if d[k] != default[k]}
-        preset = {"taxi": {"out_dir"}, "atari": {"out_dir"},
-                  "cartpole": {"out_dir", "total_frames", "d_state", "d", "env", "demo", "loss", "optim", "logger"},
-                  "atari_expert": {"out_dir", "variant", "total_frames", "logger"}}[name]
+        preset = {
+            "taxi": {"out_dir"},
+            "atari": {"out_dir"},
+            "cartpole": {"out_dir", "total_frames", "d_state", "d", "env", "demo", "loss", "optim", "logger"},
+            "atari_expert": {"out_dir", "variant", "total_frames", "logger"},
+        }[name]
         assert changed == preset
         assert set(d) == set(default)
         with pytest.raises((ConfigCompositionException, ValidationError)):
@@ -156,9 +167,11 @@ def test_configure_process_quiets_torchrl_even_before_torchrl_is_imported():
     import subprocess
     import sys
 
-    code = ("from torchrl_hybrid.utils.process import configure_process; configure_process(None); "
-            "import torch; from torchrl.data import LazyTensorStorage, ReplayBuffer; "
-            "ReplayBuffer(storage=LazyTensorStorage(4)).extend(torch.zeros(2, 1))")
+    code = (
+        "from torchrl_hybrid.utils.process import configure_process; configure_process(None); "
+        "import torch; from torchrl.data import LazyTensorStorage, ReplayBuffer; "
+        "ReplayBuffer(storage=LazyTensorStorage(4)).extend(torch.zeros(2, 1))"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "Initialized LazyTensorStorage" not in r.stdout + r.stderr
@@ -182,6 +195,7 @@ def test_lr_warmup_raises_the_rate_linearly_then_holds_it(tmp_path, warmup, expe
 
 def test_lr_warmup_hook_scale():
     from torchrl_hybrid.trainers.hooks import LRWarmupHook
+
     opt = torch.optim.RMSprop([torch.nn.Parameter(torch.zeros(1))], lr=0.1)
     hook = LRWarmupHook(opt, 1000)
     assert [hook.scale(f) for f in (0, 250, 1000, 5000)] == [0.0, 0.25, 1.0, 1.0]
@@ -195,8 +209,11 @@ def test_taxi_init_from_warm_starts_and_refuses_the_batched_engine(tmp_path):
     assert s["total_frames_seen"] == first["frames"] + s["frames"] == 1280
     with pytest.raises(ValueError, match="init_from needs engine=torchrl"):
         tiny(tmp_path / "b", engine="batched", init_from=str(tmp_path / "first" / "model.pt")).validate()
-    other = tiny(tmp_path / "fl", env={"env_id": "FrozenLake-v1", "kwargs": {"is_slippery": False}},
-                 init_from=str(tmp_path / "first" / "model.pt"))
+    other = tiny(
+        tmp_path / "fl",
+        env={"env_id": "FrozenLake-v1", "kwargs": {"is_slippery": False}},
+        init_from=str(tmp_path / "first" / "model.pt"),
+    )
     with pytest.raises(ValueError, match=r"other settings for \['env.env_id', 'env.kwargs'\]"):
         train_taxi(other)
 
@@ -221,8 +238,7 @@ def _stub_trainer(parts, params, lr=1.0):
             return out
 
     loss = Loss()
-    return SimpleNamespace(loss_module=loss, optimizer=torch.optim.SGD(params, lr=lr),
-                           compute_loss=lambda td: loss(td))
+    return SimpleNamespace(loss_module=loss, optimizer=torch.optim.SGD(params, lr=lr), compute_loss=lambda td: loss(td))
 
 
 def test_per_term_clip_keeps_the_bc_gradient_that_a_global_clip_scales_down():
@@ -235,13 +251,16 @@ def test_per_term_clip_keeps_the_bc_gradient_that_a_global_clip_scales_down():
     moves = {}
     for clip in ("global", "per_term"):
         w = torch.nn.Parameter(torch.zeros(1))
-        trainer = _stub_trainer({"rl": lambda: {"loss_objective": 100.0 * w.sum()},
-                                 "bc": lambda: {"loss_bc": 1.0 * w.sum()}}, [w])
+        trainer = _stub_trainer(
+            {"rl": lambda w=w: {"loss_objective": 100.0 * w.sum()}, "bc": lambda w=w: {"loss_bc": 1.0 * w.sum()}}, [w]
+        )
         out = ClippedOptimizationStepper(1.0, clip=clip).step(trainer, TensorDict({}, []))
         moves[clip] = -float(w.detach())
         if clip == "per_term":
-            assert float(out["grad_norm_rl"]) == pytest.approx(100.0) and float(out["grad_norm_bc"]) == pytest.approx(1.0)
-    assert moves["global"] == pytest.approx(1.0, abs=1e-5)    # 101 scaled to 1: BC's share is 1/101
+            assert float(out["grad_norm_rl"]) == pytest.approx(100.0) and float(out["grad_norm_bc"]) == pytest.approx(
+                1.0
+            )
+    assert moves["global"] == pytest.approx(1.0, abs=1e-5)  # 101 scaled to 1: BC's share is 1/101
     assert moves["per_term"] == pytest.approx(2.0, abs=1e-5)  # RL clipped to 1, BC's 1 kept
 
 
@@ -254,10 +273,14 @@ def test_extra_bc_and_inverse_model_updates_per_batch(tmp_path):
     updates = 640 // run.cfg.frames_per_batch
     opt = run.trainer.optimizer
     actor = {id(p) for p in run.actor.parameters()}
-    steps = {name: {int(opt.state[p]["step"]) for g in opt.param_groups for p in g["params"] if pick(g, p)}
-             for name, pick in (("actor", lambda g, p: id(p) in actor),
-                                ("critic", lambda g, p: g["name"] == "policy" and id(p) not in actor),
-                                ("inverse_model", lambda g, p: g["name"] == "inverse_model"))}
+    steps = {
+        name: {int(opt.state[p]["step"]) for g in opt.param_groups for p in g["params"] if pick(g, p)}
+        for name, pick in (
+            ("actor", lambda g, p: id(p) in actor),
+            ("critic", lambda g, p: g["name"] == "policy" and id(p) not in actor),
+            ("inverse_model", lambda g, p: g["name"] == "inverse_model"),
+        )
+    }
     run.collector.shutdown()
     run.lock.close()
     assert steps == {"actor": {3 * updates}, "critic": {updates}, "inverse_model": {2 * updates}}

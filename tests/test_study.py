@@ -1,5 +1,6 @@
 """A study (compare, atari_compare, taxi_sweep) is a unit like a run: it never reports or
 overwrites runs made with other settings, defaults to a fresh folder, and holds a lock."""
+
 import dataclasses
 import json
 from pathlib import Path
@@ -8,26 +9,38 @@ import pytest
 
 from torchrl_hybrid.experiments.study import STUDY_FILE, open_study, settings_diff
 
-FROZEN = {"env": {"env_id": "FrozenLake-v1", "kwargs": {"map_name": "8x8", "is_slippery": False},
-                  "max_episode_steps": 100},
-          "total_frames": 320, "logger": {"log_every_frames": 320, "eval_episodes": 2, "final_eval_episodes": 2}}
+FROZEN = {
+    "env": {"env_id": "FrozenLake-v1", "kwargs": {"map_name": "8x8", "is_slippery": False}, "max_episode_steps": 100},
+    "total_frames": 320,
+    "logger": {"log_every_frames": 320, "eval_episodes": 2, "final_eval_episodes": 2},
+}
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
-            if p.is_file() and p.name != ".study.lock"}
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != ".study.lock"
+    }
 
 
 def test_a_compare_rerun_with_other_settings_is_refused_then_rerun_with_overwrite(tmp_path, capsys):
     from torchrl_hybrid.experiments.gym_compare import GymCompareConfig, run_gym_compare
 
-    cfg = GymCompareConfig(base=FROZEN, variants=["a2c"], seeds=[0], out_dir=str(tmp_path), workers=1,
-                           command="cmd one")
+    cfg = GymCompareConfig(
+        base=FROZEN, variants=["a2c"], seeds=[0], out_dir=str(tmp_path), workers=1, command="cmd one"
+    )
     run_gym_compare(cfg)
     assert json.loads((tmp_path / STUDY_FILE).read_text()) == {"kind": "gym_compare"}
     before = _snapshot(tmp_path)
-    changed = GymCompareConfig(base={**FROZEN, "optim": {"lr": 0.01}}, variants=["a2c"], seeds=[0],
-                               out_dir=str(tmp_path), workers=1, command="cmd two")
+    changed = GymCompareConfig(
+        base={**FROZEN, "optim": {"lr": 0.01}},
+        variants=["a2c"],
+        seeds=[0],
+        out_dir=str(tmp_path),
+        workers=1,
+        command="cmd two",
+    )
     with pytest.raises(ValueError, match=r"1 run\(s\) in .* other settings .*a2c_s0: optim.lr: 0.001 -> 0.01"):
         run_gym_compare(changed)
     assert _snapshot(tmp_path) == before  # nothing rewritten: not the README's Rerun line, not a run
@@ -53,12 +66,21 @@ def test_an_atari_compare_refuses_finished_runs_of_another_base_setting(tmp_path
 
     run = tmp_path / "Pong" / "a2c_s0"
     run.mkdir(parents=True)
-    made = atari_config({"variant": "a2c", "seed": 0, "total_frames": 640, "out_dir": str(run), "env": {"game": "Pong"}})
+    made = atari_config(
+        {"variant": "a2c", "seed": 0, "total_frames": 640, "out_dir": str(run), "env": {"game": "Pong"}}
+    )
     (run / "config.json").write_text(json.dumps(dataclasses.asdict(made)))
     (run / "summary.json").write_text("{}")
     before = _snapshot(tmp_path)
-    cfg = CompareConfig(games=["Pong"], variants=["a2c"], seeds=[0], total_frames=640, out_dir=str(tmp_path),
-                        workers=1, base={"loss": {"entropy_coeff": 0.5}})
+    cfg = CompareConfig(
+        games=["Pong"],
+        variants=["a2c"],
+        seeds=[0],
+        total_frames=640,
+        out_dir=str(tmp_path),
+        workers=1,
+        base={"loss": {"entropy_coeff": 0.5}},
+    )
     with pytest.raises(ValueError, match=r"Pong/a2c_s0: loss.entropy_coeff: 0.01 -> 0.5"):
         run_compare(cfg)
     assert _snapshot(tmp_path) == {**before, STUDY_FILE: b'{\n  "kind": "atari_compare"\n}'}
@@ -89,8 +111,11 @@ def test_a_sweep_over_a_finished_sweep_of_other_settings_is_refused(tmp_path):
     (tmp_path / "README.md").write_text("the committed study")
     before = _snapshot(tmp_path)
     cfg = SweepConfig(groups=["ranks"], seeds=2, total_frames=2000, out_dir=str(tmp_path), workers=1)
-    with pytest.raises(ValueError, match=r"finished sweep with other settings \(groups: \['agents', 'ranks', "
-                                         r"'noise'\] -> \['ranks'\]; seeds: 16 -> 2; total_frames: 80000 -> 2000"):
+    with pytest.raises(
+        ValueError,
+        match=r"finished sweep with other settings \(groups: \['agents', 'ranks', "
+        r"'noise'\] -> \['ranks'\]; seeds: 16 -> 2; total_frames: 80000 -> 2000",
+    ):
         run_sweep(cfg, show_progress=False)
     assert _snapshot(tmp_path) == {**before, STUDY_FILE: b'{\n  "kind": "taxi_sweep"\n}'}
 
@@ -119,6 +144,7 @@ def test_settings_diff_names_each_setting_and_reads_missing_ones_as_defaults():
     saved = {"optim": {"lr": 0.001}, "seed": 0, "threads": 1}
     now = {"optim": {"lr": 0.01, "eps": 1e-5}, "seed": 0, "threads": 4}
     assert settings_diff(saved, now, ["optim", "seed"], defaults={"optim": {"eps": 1e-5}}) == [
-        "optim.lr: 0.001 -> 0.01"]
+        "optim.lr: 0.001 -> 0.01"
+    ]
     assert settings_diff(saved, now, ["optim.eps"]) == ["optim.eps: None -> 1e-05"]
     assert settings_diff(saved, now, ["optim"], ignore=["optim.lr", "optim.eps"]) == []

@@ -32,16 +32,31 @@ def test_parameter_table_computes_the_papers_ratio():
 @pytest.fixture(scope="module")
 def tiny_sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("sweep")
-    cfg = SweepConfig(groups=("agents", "ranks", "noise"), seeds=2, total_frames=640, out_dir=str(out), workers=2,
-                      base={"logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8}})
+    cfg = SweepConfig(
+        groups=("agents", "ranks", "noise"),
+        seeds=2,
+        total_frames=640,
+        out_dir=str(out),
+        workers=2,
+        base={"logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8}},
+    )
     run_sweep(cfg, show_progress=False)
     return out
 
 
 def test_sweep_writes_figures_tables_and_claims(tiny_sweep):
     out = tiny_sweep
-    for f in ("fig_agents.png", "fig_ranks.png", "fig_noise.png", "fig_action_prediction.png", "curves.csv",
-              "final.csv", "parameters.csv", "runs.json", "README.md"):
+    for f in (
+        "fig_agents.png",
+        "fig_ranks.png",
+        "fig_noise.png",
+        "fig_action_prediction.png",
+        "curves.csv",
+        "final.csv",
+        "parameters.csv",
+        "runs.json",
+        "README.md",
+    ):
         assert (out / f).exists(), f
     data = json.loads((out / "runs.json").read_text())
     assert len(data["runs"]) == 20 and all(len(v) == 2 for v in data["runs"].values())
@@ -58,12 +73,25 @@ def test_reproduction_notebook_runs_on_a_sweep(tiny_sweep, monkeypatch):
 
 
 def test_sweep_command_line_subset(tmp_path):
-    cmd = [sys.executable, str(ROOT / "recipes" / "taxi_sweep.py"), "groups=[ranks]", "seeds=1", "total_frames=320",
-           f"out_dir={tmp_path}", "workers=1", "+base.logger.eval_episodes=4", "+base.logger.final_eval_episodes=4"]
+    cmd = [
+        sys.executable,
+        str(ROOT / "recipes" / "taxi_sweep.py"),
+        "groups=[ranks]",
+        "seeds=1",
+        "total_frames=320",
+        f"out_dir={tmp_path}",
+        "workers=1",
+        "+base.logger.eval_episodes=4",
+        "+base.logger.final_eval_episodes=4",
+    ]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert res.returncode == 0, res.stderr[-2000:]
     assert set(json.loads((tmp_path / "runs.json").read_text())["runs"]) == {
-        "hybrid_dual_rank1", "hybrid_dual", "hybrid_dual_rank4", "a2c"}
+        "hybrid_dual_rank1",
+        "hybrid_dual",
+        "hybrid_dual_rank4",
+        "a2c",
+    }
     bad = subprocess.run(cmd[:2] + ["seeds=0", f"out_dir={tmp_path}/x"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "seeds must be >= 1" in bad.stderr
 
@@ -75,9 +103,16 @@ def test_an_interrupted_sweep_runs_only_the_missing_configurations(tmp_path, cap
     assert not (tmp_path / "configs").exists()  # a finished sweep keeps everything in runs.json
     # the state an interrupted sweep leaves: a2c finished (its file written), the others not
     from torchrl_hybrid.utils.config import merge_dicts
-    settings = [merge_dicts(merge_dicts(merge_dicts({"total_frames": 320, "logger": {"progress_bar": False}}, base),
-                                    {"variant": "a2c"}), {"seed": s, "out_dir": f"{tmp_path}/runs/a2c/seed_{s}"})
-                for s in range(2)]
+
+    settings = [
+        merge_dicts(
+            merge_dicts(
+                merge_dicts({"total_frames": 320, "logger": {"progress_bar": False}}, base), {"variant": "a2c"}
+            ),
+            {"seed": s, "out_dir": f"{tmp_path}/runs/a2c/seed_{s}"},
+        )
+        for s in range(2)
+    ]
     marker = [dict(r, final_return=123.0) for r in first["a2c"]]
     # the same sweep again: analysed, nothing trained
     capsys.readouterr()

@@ -7,19 +7,28 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 from torchrl_hybrid.data import save_demos
 from torchrl_hybrid.trainers import VARIANTS
 from torchrl_hybrid.trainers.taxi import TaxiConfig, config_from_dict, train_taxi
-from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def tiny(tmp_path, **kw) -> TaxiConfig:
-    d = {"total_frames": 640, "out_dir": str(tmp_path / kw.get("variant", "run")), "device": TEST_DEVICE,
-         "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8,
-                    "progress_bar": False, "backend": "csv"}}
+    d = {
+        "total_frames": 640,
+        "out_dir": str(tmp_path / kw.get("variant", "run")),
+        "device": TEST_DEVICE,
+        "logger": {
+            "log_every_frames": 320,
+            "eval_episodes": 8,
+            "final_eval_episodes": 8,
+            "progress_bar": False,
+            "backend": "csv",
+        },
+    }
     if kw.get("engine") == "batched":
         d["device"] = "cpu"  # the batched engine runs on the CPU only
     for k, v in kw.items():
@@ -50,10 +59,23 @@ def test_every_variant_runs_and_writes_its_outputs(tmp_path, variant):
 
 
 def test_options_noise_rank_curriculum_and_gym_backend(tmp_path):
-    s = train_taxi(tiny(tmp_path, rank=1, **{"demo.eta": 0.5, "demo.epsilon": 0.2, "demo.rho": "curriculum",
-                                             "demo.form": "trajectories", "loss.bc_start_frames": 320,
-                                             "env.backend": "gym", "env.num_envs": 4,
-                                             "loss.idm_forward_coeff": 1.0, "optim.clip": "per_group"}))
+    s = train_taxi(
+        tiny(
+            tmp_path,
+            rank=1,
+            **{
+                "demo.eta": 0.5,
+                "demo.epsilon": 0.2,
+                "demo.rho": "curriculum",
+                "demo.form": "trajectories",
+                "loss.bc_start_frames": 320,
+                "env.backend": "gym",
+                "env.num_envs": 4,
+                "loss.idm_forward_coeff": 1.0,
+                "optim.clip": "per_group",
+            },
+        )
+    )
     assert s["config"]["rank"] == 1 and s["frames"] == 640
 
 
@@ -88,11 +110,16 @@ def test_hybrid_never_reads_true_expert_actions(tmp_path):
         ({"seed": "abc"}, "seed='abc' must be an integer"),
         ({"rank": "abc"}, "rank='abc' must be an integer"),
         ({"demo.eta": "abc"}, "demo.eta='abc' must be a number"),
-        ({"env.env_id": "CartPole-v1", "env.backend": "gym"}, "demo.rho=visited matches expert pairs to visited discrete"),
+        (
+            {"env.env_id": "CartPole-v1", "env.backend": "gym"},
+            "demo.rho=visited matches expert pairs to visited discrete",
+        ),
         ({"env.env_id": "Blackjack-v1"}, "observations are Tuple"),
         ({"env.env_id": "CliffWalkingSlippery-v1"}, "CliffWalkingSlippery-v1: its transitions are random"),
-        ({"device": "cuda", "engine": "batched"}, "engine=batched runs on the CPU only"
-         if torch.cuda.is_available() else "sees no CUDA GPU"),
+        (
+            {"device": "cuda", "engine": "batched"},
+            "engine=batched runs on the CPU only" if torch.cuda.is_available() else "sees no CUDA GPU",
+        ),
     ],
 )
 def test_bad_config_is_refused_with_a_clear_message(tmp_path, kw, match):
@@ -105,7 +132,9 @@ def test_bad_demo_files(tmp_path):
         train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "nope")}))
     from tensordict import TensorDict
 
-    save_demos(TensorDict({"observation": torch.rand(4, 3), ("next", "observation"): torch.rand(4, 3)}, [4]), tmp_path / "img")
+    save_demos(
+        TensorDict({"observation": torch.rand(4, 3), ("next", "observation"): torch.rand(4, 3)}, [4]), tmp_path / "img"
+    )
     with pytest.raises(ValueError, match="observation shape"):
         train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "img")}))
     nan = TensorDict({"observation": torch.zeros(4), ("next", "observation"): torch.ones(4)}, [4])
@@ -123,13 +152,21 @@ def test_bad_demo_files(tmp_path):
 
 def test_recipe_command_line(tmp_path):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    cmd = [sys.executable, str(ROOT / "recipes" / "taxi.py"), f"out_dir={tmp_path}/cli", "total_frames=320",
-           "logger.eval_episodes=4", "logger.final_eval_episodes=4", "logger.progress_bar=false"]
+    cmd = [
+        sys.executable,
+        str(ROOT / "recipes" / "taxi.py"),
+        f"out_dir={tmp_path}/cli",
+        "total_frames=320",
+        "logger.eval_episodes=4",
+        "logger.final_eval_episodes=4",
+        "logger.progress_bar=false",
+    ]
     res = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     assert "final greedy return" in res.stdout and "learning_curve.png" in res.stdout
-    fast = subprocess.run(cmd + ["engine=batched", f"out_dir={tmp_path}/fast"], capture_output=True, text=True,
-                          env=env, timeout=300)
+    fast = subprocess.run(
+        cmd + ["engine=batched", f"out_dir={tmp_path}/fast"], capture_output=True, text=True, env=env, timeout=300
+    )
     assert fast.returncode == 0 and "final greedy return" in fast.stdout, fast.stderr[-2000:]
     assert (tmp_path / "fast" / "metrics.csv").exists()
     bad = subprocess.run(cmd + ["variant=nope"], capture_output=True, text=True, env=env, timeout=300)
@@ -165,7 +202,9 @@ def test_demos_with_impossible_transitions_are_refused(tmp_path, taxi):
     model, policy, _ = taxi
     demos = tabular_state_pairs(model, policy)
     save_demos(demos, tmp_path / "ok")
-    assert train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "a"), **{"demo.path": str(tmp_path / "ok")}))["frames"] == 640
+    assert (
+        train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "a"), **{"demo.path": str(tmp_path / "ok")}))["frames"] == 640
+    )
     shuffled = demos.clone()
     shuffled["next", "observation"] = shuffled["next", "observation"][torch.randperm(len(demos))]
     save_demos(shuffled, tmp_path / "shuffled")
@@ -174,8 +213,17 @@ def test_demos_with_impossible_transitions_are_refused(tmp_path, taxi):
 
 
 def test_robust_bc_options_run_in_the_pipeline(tmp_path):
-    s = train_taxi(tiny(tmp_path, **{"loss.bc_labels": "soft", "loss.bc_confidence": 0.3,
-                                    "loss.bc_entropy_floor": 0.5, "loss.bc_ready_accuracy": 0.2}))
+    s = train_taxi(
+        tiny(
+            tmp_path,
+            **{
+                "loss.bc_labels": "soft",
+                "loss.bc_confidence": 0.3,
+                "loss.bc_entropy_floor": 0.5,
+                "loss.bc_ready_accuracy": 0.2,
+            },
+        )
+    )
     assert s["frames"] == 640
     import csv
 
@@ -195,29 +243,50 @@ def test_robust_bc_options_run_in_the_pipeline(tmp_path):
 
 
 def test_frozenlake_8x8_through_env_kwargs_with_its_own_optimal_return(tmp_path):
-    kw = {"env.env_id": "FrozenLake-v1", "env.kwargs": {"map_name": "8x8", "is_slippery": False},
-          "env.max_episode_steps": 100}
+    kw = {
+        "env.env_id": "FrozenLake-v1",
+        "env.kwargs": {"map_name": "8x8", "is_slippery": False},
+        "env.max_episode_steps": 100,
+    }
     s = train_taxi(tiny(tmp_path, **kw))
     assert s["optimal_return"] == 1.0 and s["frames"] == 640  # the expert's own evaluation, not assumed
     assert s["config"]["env"]["kwargs"] == {"map_name": "8x8", "is_slippery": False}
     with pytest.raises(ValueError, match="does not end an episode.*expert_gamma"):
         train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "g1"), **kw, **{"demo.expert_gamma": 1.0}))
     with pytest.raises(ValueError, match="random"):  # slippery: random transitions, refused before training
-        train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "slip"),
-                        **{**kw, "env.kwargs": {"map_name": "8x8", "is_slippery": True}}))
+        train_taxi(
+            tiny(
+                tmp_path,
+                out_dir=str(tmp_path / "slip"),
+                **{**kw, "env.kwargs": {"map_name": "8x8", "is_slippery": True}},
+            )
+        )
 
 
 def test_vector_observations_cartpole_expert_checkpoint_demos_and_hybrid(tmp_path):
     """CartPole (no table P): an A2C run is the expert, its checkpoint is played to record
     the state-only demos, and the hybrid agent trains on them with MLP encoders."""
-    cp = {"env.env_id": "CartPole-v1", "env.max_episode_steps": 200, "demo.rho": "uniform",
-          "demo.form": "trajectories", "demo.num_trajectories": 4, "loss.n_steps": 5, "d_state": 16, "d": 16,
-          "encoder.hidden": 16}
+    cp = {
+        "env.env_id": "CartPole-v1",
+        "env.max_episode_steps": 200,
+        "demo.rho": "uniform",
+        "demo.form": "trajectories",
+        "demo.num_trajectories": 4,
+        "loss.n_steps": 5,
+        "d_state": 16,
+        "d": 16,
+        "encoder.hidden": 16,
+    }
     expert = train_taxi(tiny(tmp_path, variant="a2c", out_dir=str(tmp_path / "expert"), **cp))
     assert expert["optimal_return"] is None and expert["idm_accuracy_expert"] is None
     ckpt = str(tmp_path / "expert" / "model.pt")
-    s = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "hybrid"),
-                        **{**cp, "demo.expert": ckpt, "demo.save_path": str(tmp_path / "demos")}))
+    s = train_taxi(
+        tiny(
+            tmp_path,
+            out_dir=str(tmp_path / "hybrid"),
+            **{**cp, "demo.expert": ckpt, "demo.save_path": str(tmp_path / "demos")},
+        )
+    )
     # the optimum is the expert's own greedy return on the same final episodes, never assumed
     assert s["optimal_return"] == pytest.approx(expert["final_return"])
     assert 0.0 <= s["idm_accuracy_expert"] <= 1.0 and s["frames"] == 640
@@ -225,6 +294,7 @@ def test_vector_observations_cartpole_expert_checkpoint_demos_and_hybrid(tmp_pat
     assert {"idm_accuracy", "idm_accuracy_expert", "loss_bc"} <= set(rows[0])
     # recorded demos: whole expert episodes, pairs within them, true actions kept for diagnostics only
     from torchrl_hybrid.data import load_demos
+
     demos, meta = load_demos(tmp_path / "demos")
     assert meta["env_id"] == "CartPole-v1" and len(meta["returns"]) == 4
     assert demos["observation"].shape[1:] == (4,) and int(demos["trajectory"].max()) == 3
@@ -234,13 +304,16 @@ def test_vector_observations_cartpole_expert_checkpoint_demos_and_hybrid(tmp_pat
     assert s2["optimal_return"] is None and s2["frames"] == 640
 
 
-@pytest.mark.parametrize("kw,match", [
-    ({}, "no built-in expert.*demo.expert"),
-    ({"demo.rho": "visited", "demo.expert": "x"}, "demo.rho=uniform"),
-    ({"demo.eta": 0.5, "demo.expert": "x"}, "table P"),
-    ({"demo.expert": "/nope/model.pt"}, "no such checkpoint"),
-    ({"env.env_id": "MountainCarContinuous-v0"}, "discrete actions"),
-])
+@pytest.mark.parametrize(
+    "kw,match",
+    [
+        ({}, "no built-in expert.*demo.expert"),
+        ({"demo.rho": "visited", "demo.expert": "x"}, "demo.rho=uniform"),
+        ({"demo.eta": 0.5, "demo.expert": "x"}, "table P"),
+        ({"demo.expert": "/nope/model.pt"}, "no such checkpoint"),
+        ({"env.env_id": "MountainCarContinuous-v0"}, "discrete actions"),
+    ],
+)
 def test_vector_observation_errors_name_the_fix(tmp_path, kw, match):
     cfg = tiny(tmp_path, **{"env.env_id": "CartPole-v1", "env.max_episode_steps": 200, "demo.rho": "uniform", **kw})
     with pytest.raises((ValueError, FileNotFoundError), match=match):
@@ -276,16 +349,20 @@ def _collected_with_current_weights(kind, tmp_path):
 
 def test_multi_process_collection_uses_the_learners_weights(tmp_path):
     _collected_with_current_weights("multi_sync", tmp_path)
-    s = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "ms"), **{"collector.kind": "multi_sync",
-                                                                    "collector.workers": 2}))
+    s = train_taxi(
+        tiny(tmp_path, out_dir=str(tmp_path / "ms"), **{"collector.kind": "multi_sync", "collector.workers": 2})
+    )
     assert s["frames"] == 640
 
 
-@pytest.mark.parametrize("preset,expert", [
-    ("mountaincar", None),                                                # the scripted expert of the preset
-    ("acrobot", "torchrl_hybrid.experts.scripted:acrobot_energy"),         # a scripted expert by name
-    ("lunarlander", "a2c"),                                               # an expert checkpoint of this pipeline
-])
+@pytest.mark.parametrize(
+    "preset,expert",
+    [
+        ("mountaincar", None),  # the scripted expert of the preset
+        ("acrobot", "torchrl_hybrid.experts.scripted:acrobot_energy"),  # a scripted expert by name
+        ("lunarlander", "a2c"),  # an expert checkpoint of this pipeline
+    ],
+)
 def test_every_gym_preset_composes_and_runs_the_hybrid_with_its_expert(tmp_path, preset, expert):
     """Each preset of issue 32's envs, as Hydra composes it, on a tiny budget: the demos are
     recorded from its expert (scripted, named as module:function, or a model.pt) and the
@@ -299,9 +376,17 @@ def test_every_gym_preset_composes_and_runs_the_hybrid_with_its_expert(tmp_path,
 
     register_configs()
     folder = str(Path(__file__).resolve().parents[1] / "recipes" / "config")
-    tiny_run = [f"out_dir={tmp_path / 'run'}", "total_frames=400", "env.num_envs=4", "demo.num_trajectories=2",
-                "logger.log_every_frames=200", "logger.eval_episodes=2", "logger.final_eval_episodes=2",
-                "logger.progress_bar=false", f"device={TEST_DEVICE}"]
+    tiny_run = [
+        f"out_dir={tmp_path / 'run'}",
+        "total_frames=400",
+        "env.num_envs=4",
+        "demo.num_trajectories=2",
+        "logger.log_every_frames=200",
+        "logger.eval_episodes=2",
+        "logger.final_eval_episodes=2",
+        "logger.progress_bar=false",
+        f"device={TEST_DEVICE}",
+    ]
     if preset == "lunarlander":  # an untrained lander hovers for 1,000 steps in every evaluation episode
         tiny_run.append("env.max_episode_steps=100")
     with initialize_config_dir(config_dir=folder, version_base=None):

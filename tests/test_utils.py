@@ -36,6 +36,7 @@ def test_legacy_files_are_read_with_the_accuracy_columns_named_apart():
     new = {"idm_accuracy": 0.5, "idm_accuracy_expert": math.nan}
     assert upgrade_accuracy_keys(dict(new)).keys() == new.keys()
     from torchrl_hybrid.experiments.taxi_sweep import load_sweep
+
     runs, meta = load_sweep(ROOT / "results" / "taxi")  # committed before the rename
     r = runs["hybrid_dual"][0]
     assert "idm_accuracy" not in r and 0.5 < r["idm_accuracy_expert"] <= 1
@@ -44,6 +45,7 @@ def test_legacy_files_are_read_with_the_accuracy_columns_named_apart():
 
 def test_metrics_hook_refuses_an_evaluator_column_that_is_a_loss_output(tmp_path):
     from torchrl_hybrid.trainers.hooks import MetricsHook
+
     hook = MetricsHook(tmp_path / "m.csv", 10, evaluator=lambda: {"idm_accuracy": 1.0})
     hook._losses = {"idm_accuracy": torch.tensor(0.5)}
     with pytest.raises(ValueError, match="also loss outputs"):

@@ -3,21 +3,21 @@ integer-ness and combinations that cannot work are refused in one line naming th
 a finished run is never rewritten by a resume that trains nothing; the unclear cases (an
 out_dir that is a file, an unknown env id, a logger whose package is missing, the batched
 engine asked to resume) say which setting and what to do."""
+
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 import re
 import subprocess
 import sys
 import tempfile
-import tomllib
 import typing
 from pathlib import Path
 
 import pytest
+import tomllib
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -32,8 +32,12 @@ from torchrl_hybrid.utils.files import RUN_FILES
 ROOT = Path(__file__).resolve().parents[1]
 # 4 envs x 2 steps = 8 frames a batch: a run of 64 frames is 8 updates, a few seconds with its evaluations
 # (Taxi's expert ends every episode within 30 steps)
-SMALL = {"total_frames": 64, "device": "cpu", "env": {"num_envs": 4, "max_episode_steps": 30},
-         "logger": {"log_every_frames": 64, "eval_episodes": 2, "final_eval_episodes": 2, "progress_bar": False}}
+SMALL = {
+    "total_frames": 64,
+    "device": "cpu",
+    "env": {"num_envs": 4, "max_episode_steps": 30},
+    "logger": {"log_every_frames": 64, "eval_episodes": 2, "final_eval_episodes": 2, "progress_bar": False},
+}
 
 
 def small(out: Path, **groups) -> TaxiConfig:
@@ -74,16 +78,46 @@ def assert_names(err: Exception, name: str) -> None:
 TAXI_NUMERIC = numeric_settings(TaxiConfig)
 ATARI_NUMERIC = numeric_settings(AtariConfig)
 ANY_NUMBER = st.one_of(
-    st.sampled_from([0, -1, 1, 2, -0.0, 0.5, 1.5, True, math.nan, math.inf, -math.inf, 1e300, -1e300, 10**30, -10**30,
-                     2**63, 1e-320]),
-    st.integers(min_value=-2**70, max_value=2**70),
+    st.sampled_from(
+        [
+            0,
+            -1,
+            1,
+            2,
+            -0.0,
+            0.5,
+            1.5,
+            True,
+            math.nan,
+            math.inf,
+            -math.inf,
+            1e300,
+            -1e300,
+            10**30,
+            -(10**30),
+            2**63,
+            1e-320,
+        ]
+    ),
+    st.integers(min_value=-(2**70), max_value=2**70),
     st.floats(allow_nan=True, allow_infinity=True),
 )
 
 
 def test_the_schemas_numeric_settings_are_the_ones_the_property_tests_draw():
-    for name in ("seed", "total_frames", "loss.bc_coeff", "demo.batch_size", "optim.lr", "optim.warmup_frames",
-                 "env.num_envs", "logger.eval_episodes", "ppo.clip_epsilon", "collector.worker_gpus", "encoder.hidden"):
+    for name in (
+        "seed",
+        "total_frames",
+        "loss.bc_coeff",
+        "demo.batch_size",
+        "optim.lr",
+        "optim.warmup_frames",
+        "env.num_envs",
+        "logger.eval_episodes",
+        "ppo.clip_epsilon",
+        "collector.worker_gpus",
+        "encoder.hidden",
+    ):
         assert name in TAXI_NUMERIC
     for name in ("env.noop_max", "collector.env_groups", "logger.accuracy_pairs", "loss.bc_start_frames"):
         assert name in ATARI_NUMERIC
@@ -98,7 +132,11 @@ def test_any_value_of_any_numeric_setting_passes_or_is_refused_naming_it(data):
     family = data.draw(st.sampled_from(["taxi", "atari"]))
     name = data.draw(st.sampled_from(TAXI_NUMERIC if family == "taxi" else ATARI_NUMERIC))
     value = data.draw(ANY_NUMBER)
-    base = data.draw(st.sampled_from([{}, {"rl": "ppo"}, {"engine": "batched"}])) if family == "taxi" else {"variant": "a2c"}
+    base = (
+        data.draw(st.sampled_from([{}, {"rl": "ppo"}, {"engine": "batched"}]))
+        if family == "taxi"
+        else {"variant": "a2c"}
+    )
     build = config_from_dict if family == "taxi" else atari_config
     try:
         build(merge_dicts(base, nested(name, value))).validate()
@@ -114,26 +152,41 @@ def test_any_value_of_any_numeric_setting_passes_or_is_refused_naming_it(data):
 
 
 # values that cannot make a run long: small integers, and floats from the awkward ones to the plain ones
-CHEAP_NUMBER = st.one_of(st.integers(min_value=-2, max_value=12),
-                         st.sampled_from([math.nan, math.inf, -math.inf, -0.5, 0.0, 1e-8, 0.3, 0.99, 1.0, 3.0, 1e5,
-                                          1e300]))
+CHEAP_NUMBER = st.one_of(
+    st.integers(min_value=-2, max_value=12),
+    st.sampled_from([math.nan, math.inf, -math.inf, -0.5, 0.0, 1e-8, 0.3, 0.99, 1.0, 3.0, 1e5, 1e300]),
+)
 SMALL_NETS = {"d": 16, "d_state": 16, "identity_embedding": False}  # a few seconds a run on a busy CPU
 RUN_SETTINGS = [n for n in TAXI_NUMERIC if n not in ("threads",)]  # threads: the recipes' process setting
 
 
-@settings(max_examples=8, deadline=None, database=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
-@given(name=st.sampled_from(RUN_SETTINGS), value=CHEAP_NUMBER, base=st.sampled_from(
-    [{"engine": "torchrl"}, {"engine": "torchrl", "rl": "ppo", "ppo": {"epochs": 1, "minibatches": 2}},
-     {"engine": "batched"}]))
+@settings(
+    max_examples=8,
+    deadline=None,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
+)
+@given(
+    name=st.sampled_from(RUN_SETTINGS),
+    value=CHEAP_NUMBER,
+    base=st.sampled_from(
+        [
+            {"engine": "torchrl"},
+            {"engine": "torchrl", "rl": "ppo", "ppo": {"epochs": 1, "minibatches": 2}},
+            {"engine": "batched"},
+        ]
+    ),
+)
 def test_a_taxi_run_with_a_value_that_passes_validation_works(name, value, base):
     """A sample of the values that pass validation train a 64-frame Taxi run without error;
     the rest are refused before anything is built, naming the setting. A value that only the
     env can judge (episodes too short for the built-in expert) is refused while building,
     also in one line naming it."""
     with tempfile.TemporaryDirectory() as tmp:
-        d = merge_dicts(merge_dicts(SMALL, {"out_dir": f"{tmp}/run", "demo": {"rho": "uniform"}, **SMALL_NETS, **base}),
-                        nested(name, value))
+        d = merge_dicts(
+            merge_dicts(SMALL, {"out_dir": f"{tmp}/run", "demo": {"rho": "uniform"}, **SMALL_NETS, **base}),
+            nested(name, value),
+        )
         try:
             cfg = config_from_dict(d).validate()
         except ValueError as err:
@@ -151,15 +204,18 @@ def test_a_taxi_run_with_a_value_that_passes_validation_works(name, value, base)
         assert summary["frames"] >= cfg.total_frames and math.isfinite(summary["final_return"])
 
 
-@pytest.mark.parametrize("groups,name", [
-    ({"loss": {"bc_coeff": math.nan}}, "loss.bc_coeff"),
-    ({"loss": {"bc_coeff": math.inf}}, "loss.bc_coeff"),
-    ({"optim": {"lr": math.nan}}, "optim.lr"),
-    ({"optim": {"eps": -1.0}}, "optim.eps"),
-    ({"demo": {"batch_size": -4, "rho": "uniform"}}, "demo.batch_size"),
-    ({"seed": -1}, "seed"),
-    ({"loss": {"gamma": 0.0}}, "loss.gamma"),
-])
+@pytest.mark.parametrize(
+    "groups,name",
+    [
+        ({"loss": {"bc_coeff": math.nan}}, "loss.bc_coeff"),
+        ({"loss": {"bc_coeff": math.inf}}, "loss.bc_coeff"),
+        ({"optim": {"lr": math.nan}}, "optim.lr"),
+        ({"optim": {"eps": -1.0}}, "optim.eps"),
+        ({"demo": {"batch_size": -4, "rho": "uniform"}}, "demo.batch_size"),
+        ({"seed": -1}, "seed"),
+        ({"loss": {"gamma": 0.0}}, "loss.gamma"),
+    ],
+)
 def test_known_bad_values_are_refused_before_training(tmp_path, groups, name):
     """nan/inf loss weights used to fail after training started (NaN probabilities), a negative
     demo batch with a negative-dimension RuntimeError, a negative eps in torch's RMSprop; a
@@ -174,8 +230,11 @@ def test_known_bad_values_are_refused_before_training(tmp_path, groups, name):
 
 def test_a_zero_demo_batch_is_refused_for_a_variant_that_clones_the_expert(tmp_path):
     """demo.batch_size=0 with rho=uniform used to turn BC off silently (the hybrid ran as plain A2C)."""
-    with pytest.raises(ValueError, match=r"demo.batch_size=0: variant hybrid_dual clones the expert .* must be >= 1 "
-                                         r"\(variant=a2c trains without demos\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"demo.batch_size=0: variant hybrid_dual clones the expert .* must be >= 1 "
+        r"\(variant=a2c trains without demos\)",
+    ):
         train_taxi(small(tmp_path / "run", demo={"batch_size": 0, "rho": "uniform"}))
     small(tmp_path / "a2c", variant="a2c", demo={"batch_size": 0}).validate()  # no demos: nothing to refuse
     with pytest.raises(ValueError, match="demo.batch_size=0: variant hybrid_dual"):
@@ -198,8 +257,12 @@ def test_ints_and_bools_must_have_their_type_even_when_set_on_the_object():
 
 
 def _snapshot(out: Path) -> dict[str, tuple[int, bytes]]:
-    files = [p for f in RUN_FILES for p in ([out / f] if (out / f).is_file() else sorted((out / f).rglob("*")))
-             if p.is_file()]
+    files = [
+        p
+        for f in RUN_FILES
+        for p in ([out / f] if (out / f).is_file() else sorted((out / f).rglob("*")))
+        if p.is_file()
+    ]
     return {str(p.relative_to(out)): (p.stat().st_mtime_ns, p.read_bytes()) for p in files}
 
 
@@ -211,8 +274,11 @@ def test_resume_of_a_finished_run_that_total_frames_does_not_extend_is_refused_a
     before = _snapshot(out)
     assert {"summary.json", "model.pt", "config.json", "metrics.csv"} <= set(before)
     for total in (64, 32):
-        with pytest.raises(ValueError, match=rf"the run in {re.escape(str(out))} is already at 64 frames; raise "
-                                             rf"total_frames \(now {total}\) to train further"):
+        with pytest.raises(
+            ValueError,
+            match=rf"the run in {re.escape(str(out))} is already at 64 frames; raise "
+            rf"total_frames \(now {total}\) to train further",
+        ):
             train_taxi(small(out, total_frames=total, resume=True))
     assert _snapshot(out) == before
     # the same checkpoint without its summary (a run stopped after its last checkpoint): refused when loaded
@@ -255,10 +321,18 @@ def test_an_out_dir_that_is_a_file_is_refused_in_one_line_before_hydra(tmp_path)
     """It used to end in Hydra's FileExistsError traceback (hydra.run.dir is ${out_dir})."""
     f = tmp_path / "afile"
     f.write_text("not a folder")
-    res = subprocess.run([sys.executable, str(ROOT / "recipes" / "train.py"), f"out_dir={f}", "total_frames=64"],
-                         capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    res = subprocess.run(
+        [sys.executable, str(ROOT / "recipes" / "train.py"), f"out_dir={f}", "total_frames=64"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     assert res.returncode == 2, res.stderr[-2000:]
-    assert res.stderr.strip() == f"error: out_dir={f} is a file, not a folder; choose another out_dir (or move the file away)"
+    assert (
+        res.stderr.strip()
+        == f"error: out_dir={f} is a file, not a folder; choose another out_dir (or move the file away)"
+    )
     assert f.read_text() == "not a folder"
     train = _recipe("train")
     for argv, bad in ([f"++out_dir='{f}/run'"], f"{f}/run"), ([f"hydra.run.dir={f}"], str(f)):
@@ -299,8 +373,11 @@ def test_each_logger_backend_runs_or_says_which_extra_to_install(tmp_path, backe
     package = LOGGER_PACKAGES.get(backend)
     if package is not None:  # a missing package: the extra to install, before anything is built
         monkeypatch.setattr(run_module, "_has_package", lambda name: name != package)
-        with pytest.raises(ValueError, match=rf"logger.backend={backend} needs the {package} package, which is not "
-                                             rf"installed: pip install -e '\.\[{package}\]'"):
+        with pytest.raises(
+            ValueError,
+            match=rf"logger.backend={backend} needs the {package} package, which is not "
+            rf"installed: pip install -e '\.\[{package}\]'",
+        ):
             train_taxi(small(tmp_path / "missing", logger={"backend": backend}))
         assert not (tmp_path / "missing").exists()
         monkeypatch.undo()

@@ -14,6 +14,7 @@ The recipes' YAML files (``recipes/config/``) start from these schemas and set o
 differs (a timestamped ``out_dir``, a preset's env). ``python recipes/train.py --cfg job``
 prints the whole composed config.
 """
+
 from __future__ import annotations
 
 __all__ = ["register_configs"]

@@ -18,10 +18,11 @@ batches), so this is synchronous A2C, with the same data: greedy collection give
 bit-identical batches for any ``env_groups`` (tested), sampled collection draws
 from the same distributions with a different order of random numbers.
 """
+
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import Iterator, Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import torch
@@ -119,20 +120,29 @@ class AtariCollector(BaseCollector):
         self.n_actions = self.envs[0].n_actions
         self.num_envs = sum(e.batch_size[0] for e in self.envs)
         if frames_per_batch < self.num_envs or frames_per_batch % self.num_envs:
-            raise ValueError(f"frames_per_batch={frames_per_batch} must be a positive multiple of the number of "
-                             f"games ({self.num_envs})")
+            raise ValueError(
+                f"frames_per_batch={frames_per_batch} must be a positive multiple of the number of "
+                f"games ({self.num_envs})"
+            )
         self.policy = policy
-        self._policy_fn = policy.module if isinstance(policy, TensorDictModuleBase) and hasattr(policy, "module") else policy
+        self._policy_fn = (
+            policy.module if isinstance(policy, TensorDictModuleBase) and hasattr(policy, "module") else policy
+        )
         try:  # the fused policy's action head; for any other module its last linear layer
             self.envs[0].check_policy(getattr(self._policy_fn, "policy_head", self._policy_fn))
         except ValueError:
             for env in self.envs:
                 env.close()
             raise
-        if keep_features and not (hasattr(self._policy_fn, "encoder") and hasattr(self._policy_fn, "heads")
-                                  and hasattr(self._policy_fn.encoder, "remember")):
-            raise ValueError("keep_features=True needs a policy with `encoder` (an AtariEncoder) and `heads`, "
-                             "such as AtariCollectionPolicy")
+        if keep_features and not (
+            hasattr(self._policy_fn, "encoder")
+            and hasattr(self._policy_fn, "heads")
+            and hasattr(self._policy_fn.encoder, "remember")
+        ):
+            raise ValueError(
+                "keep_features=True needs a policy with `encoder` (an AtariEncoder) and `heads`, "
+                "such as AtariCollectionPolicy"
+            )
         self.keep_features = bool(keep_features)
         self.frames_per_batch = int(frames_per_batch)
         self.n_steps = self.frames_per_batch // self.num_envs
@@ -260,7 +270,8 @@ class AtariCollector(BaseCollector):
         nxt = TensorDict({"observation": next_obs, **host}, [N, T], device=dev)
         return TensorDict(
             {"observation": obs, "action": action, "action_log_prob": log_prob, "state_value": value, "next": nxt},
-            [N, T], device=dev,
+            [N, T],
+            device=dev,
         )
 
     def iterator(self) -> Iterator[TensorDictBase]:
@@ -290,5 +301,7 @@ class AtariCollector(BaseCollector):
             self._closed = True
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(game={self.envs[0].game!r}, num_envs={self.num_envs}, "
-                f"env_groups={len(self.envs)}, n_steps={self.n_steps}, device={self.device})")
+        return (
+            f"{type(self).__name__}(game={self.envs[0].game!r}, num_envs={self.num_envs}, "
+            f"env_groups={len(self.envs)}, n_steps={self.n_steps}, device={self.device})"
+        )

@@ -14,18 +14,26 @@ batches are moved to the learner's device when they arrive (:class:`BatchToDevic
 With Ray, ``worker_gpus > 0`` asks for that share of a GPU per actor instead, and the
 actors run their policy there.
 """
+
 from __future__ import annotations
 
 import copy
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
 from torchrl.collectors import MultiSyncCollector
 from torchrl.trainers import Trainer, TrainerHookBase
 
-__all__ = ["WORKER_KINDS", "BatchToDeviceHook", "make_worker_collector", "worker_devices", "worker_policy",
-           "worker_weights_getter"]
+__all__ = [
+    "WORKER_KINDS",
+    "BatchToDeviceHook",
+    "make_worker_collector",
+    "worker_devices",
+    "worker_policy",
+    "worker_weights_getter",
+]
 
 WORKER_KINDS = ("multi_sync", "ray")
 
@@ -35,8 +43,10 @@ def worker_devices(kind: str, worker_gpus: float = 0.0) -> dict[str, str]:
     if worker_gpus < 0:
         raise ValueError(f"collector.worker_gpus={worker_gpus} must be >= 0")
     if worker_gpus > 0 and kind != "ray":
-        raise ValueError(f"collector.worker_gpus={worker_gpus} is a Ray setting (the GPU share of each Ray actor); "
-                         f"{kind!r} collection does not use it")
+        raise ValueError(
+            f"collector.worker_gpus={worker_gpus} is a Ray setting (the GPU share of each Ray actor); "
+            f"{kind!r} collection does not use it"
+        )
     dev = "cuda" if worker_gpus > 0 else "cpu"
     return {"env_device": "cpu", "policy_device": dev, "storing_device": dev}
 
@@ -63,8 +73,16 @@ def worker_weights_getter(policy) -> Callable[[], TensorDictBase] | None:
     return lambda: TensorDict.from_module(policy).data.to("cpu")
 
 
-def make_worker_collector(kind: str, env_fns: Sequence[Callable], policy, *, frames_per_batch: int,
-                          total_frames: int, address: str | None = None, worker_gpus: float = 0.0):
+def make_worker_collector(
+    kind: str,
+    env_fns: Sequence[Callable],
+    policy,
+    *,
+    frames_per_batch: int,
+    total_frames: int,
+    address: str | None = None,
+    worker_gpus: float = 0.0,
+):
     """``MultiSyncCollector`` (``kind="multi_sync"``: one process per env function) or
     ``RayCollector`` (``kind="ray"``: one Ray actor per env function, on the cluster at
     ``address``, or on a local one with ``len(env_fns)`` CPUs started here). The workers run
@@ -76,8 +94,15 @@ def make_worker_collector(kind: str, env_fns: Sequence[Callable], policy, *, fra
     devices = worker_devices(kind, worker_gpus)
     policy = worker_policy(policy)
     if kind == "multi_sync":
-        return MultiSyncCollector(list(env_fns), policy, frames_per_batch=frames_per_batch, total_frames=total_frames,
-                                  cat_results=0, auto_register_policy_transforms=False, **devices)
+        return MultiSyncCollector(
+            list(env_fns),
+            policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=total_frames,
+            cat_results=0,
+            auto_register_policy_transforms=False,
+            **devices,
+        )
     if kind != "ray":
         raise ValueError(f"unknown worker collector {kind!r}; choose one of {WORKER_KINDS}")
     from torchrl_hybrid.utils.launch import init_ray
@@ -86,8 +111,16 @@ def make_worker_collector(kind: str, env_fns: Sequence[Callable], policy, *, fra
     from torchrl.collectors.distributed import RayCollector
 
     remote = {"num_cpus": 1, **({"num_gpus": worker_gpus} if worker_gpus > 0 else {})}
-    return RayCollector(list(env_fns), policy, frames_per_batch=frames_per_batch, total_frames=total_frames, sync=True,
-                        remote_configs=remote, collector_kwargs={"auto_register_policy_transforms": False}, **devices)
+    return RayCollector(
+        list(env_fns),
+        policy,
+        frames_per_batch=frames_per_batch,
+        total_frames=total_frames,
+        sync=True,
+        remote_configs=remote,
+        collector_kwargs={"auto_register_policy_transforms": False},
+        **devices,
+    )
 
 
 class BatchToDeviceHook(TrainerHookBase):

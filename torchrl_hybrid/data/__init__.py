@@ -1,4 +1,5 @@
 """Expert state-pair datasets (our own format and local Minari datasets), samplers (rho) and demo noise."""
+
 from torchrl_hybrid.data.checks import check_observation_space, check_tabular_transitions, check_trajectories
 from torchrl_hybrid.data.expert import (
     EXPERT_ACTION_KEY,

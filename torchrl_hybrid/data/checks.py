@@ -14,6 +14,7 @@ far as the env allows:
 Each raises ``ValueError`` with one line: the source, how many pairs fail out of how many,
 the first failing pair, and how to get good demos.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,7 +23,13 @@ from tensordict import TensorDictBase
 
 from torchrl_hybrid.envs.tabular import TabularModel
 
-__all__ = ["BOUND_SLACK", "UNBOUNDED_LIMIT", "check_trajectories", "check_observation_space", "check_tabular_transitions"]
+__all__ = [
+    "BOUND_SLACK",
+    "UNBOUNDED_LIMIT",
+    "check_trajectories",
+    "check_observation_space",
+    "check_tabular_transitions",
+]
 
 #: the largest |x| accepted in an observation dimension the env leaves unbounded (CartPole's
 #: velocities; gymnasium writes these bounds as inf or as float32's max). OURS: no physical
@@ -38,8 +45,9 @@ BOUND_SLACK = 1.0
 _INFINITE_BOUND = 1e30
 
 
-def check_trajectories(demos: TensorDictBase, source: str, fix: str, *, sample: int | None = None,
-                       seed: int = 0) -> None:
+def check_trajectories(
+    demos: TensorDictBase, source: str, fix: str, *, sample: int | None = None, seed: int = 0
+) -> None:
     """Refuses demos whose pairs do not chain within a trajectory: the pair at step t and the
     pair at step t+1 of the same trajectory must share a state (s'_t == s_{t+1}; floats within
     1e-5). Skipped for pairs without ``trajectory`` (e.g. one pair per state), across gaps in
@@ -63,7 +71,7 @@ def check_trajectories(demos: TensorDictBase, source: str, fix: str, *, sample: 
     if len(a) == 0:
         return
     obs, nxt = demos["observation"], demos["next", "observation"]
-    obs, nxt = obs.reshape(n, *obs.shape[demos.ndim:]), nxt.reshape(n, *nxt.shape[demos.ndim:])
+    obs, nxt = obs.reshape(n, *obs.shape[demos.ndim :]), nxt.reshape(n, *nxt.shape[demos.ndim :])
     x, y = nxt[a], obs[b]
     same = torch.isclose(x, y, rtol=1e-5, atol=1e-5) if x.dtype.is_floating_point else x == y
     bad = ~same.reshape(len(a), -1).all(-1)
@@ -72,11 +80,13 @@ def check_trajectories(demos: TensorDictBase, source: str, fix: str, *, sample: 
         raise ValueError(
             f"{source}: {int(bad.sum())} of {len(a)} {what} within a trajectory do not chain (the next observation "
             f"of step t must be the observation of step t+1; first: pair {i}, trajectory {int(traj[i])}, step "
-            f"{int(step[i])}); the next states are shuffled or these are not recorded trajectories: {fix}")
+            f"{int(step[i])}); the next states are shuffled or these are not recorded trajectories: {fix}"
+        )
 
 
-def check_observation_space(demos: TensorDictBase, low, high, source: str, fix: str, *,
-                            env_id: str = "the env") -> None:
+def check_observation_space(
+    demos: TensorDictBase, low, high, source: str, fix: str, *, env_id: str = "the env"
+) -> None:
     """Refuses vector observations outside the env's ``Box(low, high)``: a dimension with
     finite bounds accepts up to :data:`BOUND_SLACK` times its range beyond each bound (some envs
     leave their declared bounds); a dimension without a bound (inf, or float32's max) accepts
@@ -87,7 +97,8 @@ def check_observation_space(demos: TensorDictBase, low, high, source: str, fix: 
     unbounded_high = ~torch.isfinite(high) | (high >= _INFINITE_BOUND)
     bounded = ~unbounded_low & ~unbounded_high
     slack = torch.where(bounded, BOUND_SLACK * (high - low), torch.zeros_like(low)) + 1e-5 * torch.maximum(
-        low.abs(), high.abs()).clamp(min=1).nan_to_num(posinf=1.0)
+        low.abs(), high.abs()
+    ).clamp(min=1).nan_to_num(posinf=1.0)
     lo = torch.where(unbounded_low, torch.full_like(low, -UNBOUNDED_LIMIT), low - slack)
     hi = torch.where(unbounded_high, torch.full_like(high, UNBOUNDED_LIMIT), high + slack)
     n = demos.batch_size.numel()
@@ -111,11 +122,19 @@ def check_observation_space(demos: TensorDictBase, low, high, source: str, fix: 
             f"{source}: {int(out.sum())} of {n} pairs have observations outside the observation space of {env_id} "
             f"(first: pair {i}, {key!r}[{d}] = {v:.6g}, allowed [{float(lo[d]):.6g}, {float(hi[d]):.6g}]; "
             f"dimensions without a bound allow |x| <= {UNBOUNDED_LIMIT:g}); the demos are scaled, unnormalised or "
-            f"recorded on another env: {fix}")
+            f"recorded on another env: {fix}"
+        )
 
 
-def check_tabular_transitions(demos: TensorDictBase, model: TabularModel, source: str, fix: str, *,
-                              env_id: str = "the env", action_key: str = "expert_action") -> None:
+def check_tabular_transitions(
+    demos: TensorDictBase,
+    model: TabularModel,
+    source: str,
+    fix: str,
+    *,
+    env_id: str = "the env",
+    action_key: str = "expert_action",
+) -> None:
     """Refuses tabular demos that the env's table ``P`` cannot have produced: states outside
     ``[0, n_states)``; pairs (s, s') that no action makes; and, where the true actions are
     stored under ``action_key``, triples (s, a, s') where ``a`` does not lead from s to s'."""
@@ -127,9 +146,11 @@ def check_tabular_transitions(demos: TensorDictBase, model: TabularModel, source
     possible = ((model.next_state[obs] == nxt.view(-1, 1, 1)) & (model.prob[obs] > 0)).flatten(1).any(-1)
     if not bool(possible.all()):
         i = int((~possible).nonzero()[0])
-        raise ValueError(f"{source}: {int((~possible).sum())} of {possible.numel()} pairs are not transitions "
-                         f"of {env_id} under any action (first: pair {i}, {int(obs[i])} -> {int(nxt[i])}); "
-                         f"demos for another env, or shuffled next states: {fix}")
+        raise ValueError(
+            f"{source}: {int((~possible).sum())} of {possible.numel()} pairs are not transitions "
+            f"of {env_id} under any action (first: pair {i}, {int(obs[i])} -> {int(nxt[i])}); "
+            f"demos for another env, or shuffled next states: {fix}"
+        )
     if action_key not in demos.keys():
         return
     act = demos[action_key].reshape(-1).long()
@@ -138,8 +159,10 @@ def check_tabular_transitions(demos: TensorDictBase, model: TabularModel, source
     leads = ((model.next_state[obs, a] == nxt.view(-1, 1)) & (model.prob[obs, a] > 0)).any(-1) & valid
     if not bool(leads.all()):
         i = int((~leads).nonzero()[0])
-        raise ValueError(f"{source}: {int((~leads).sum())} of {leads.numel()} pairs (s, a, s') are not transitions "
-                         f"of {env_id}: the stored action {action_key!r} does not lead from s to s' (first: pair "
-                         f"{i}, {int(obs[i])} -a={int(act[i])}-> {int(nxt[i])}); the actions are not the ones that "
-                         f"made these demos: {fix}, or drop the {action_key!r} entry if the true actions are unknown "
-                         "(variant=il needs them)")
+        raise ValueError(
+            f"{source}: {int((~leads).sum())} of {leads.numel()} pairs (s, a, s') are not transitions "
+            f"of {env_id}: the stored action {action_key!r} does not lead from s to s' (first: pair "
+            f"{i}, {int(obs[i])} -a={int(act[i])}-> {int(nxt[i])}); the actions are not the ones that "
+            f"made these demos: {fix}, or drop the {action_key!r} entry if the true actions are unknown "
+            "(variant=il needs them)"
+        )

@@ -13,12 +13,13 @@ A dataset is a flat TensorDict of expert pairs with the entries
 
 Pairs never span two trajectories.
 """
+
 from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -147,14 +148,16 @@ def validate_demos(
     """Checks a demo dataset and raises ``ValueError`` naming the problem and the fix."""
     for key in ("observation", ("next", "observation")):
         if key not in demos.keys(include_nested=True):
-            raise ValueError(f"{source}: missing entry {key!r}; a demo dataset needs observation and ('next', 'observation').")
+            raise ValueError(
+                f"{source}: missing entry {key!r}; a demo dataset needs observation and ('next', 'observation')."
+            )
     if demos.batch_size.numel() == 0:
         raise ValueError(f"{source}: the dataset is empty (0 pairs); regenerate it or point to another file.")
     for key in ("observation", ("next", "observation")):
         x = demos.get(key)
-        if obs_shape is not None and tuple(x.shape[demos.ndim:]) != tuple(obs_shape):
+        if obs_shape is not None and tuple(x.shape[demos.ndim :]) != tuple(obs_shape):
             raise ValueError(
-                f"{source}: {key!r} has observation shape {tuple(x.shape[demos.ndim:])}, but the env "
+                f"{source}: {key!r} has observation shape {tuple(x.shape[demos.ndim :])}, but the env "
                 f"produces {tuple(obs_shape)}; the demos were recorded for another env or preprocessing."
             )
         if x.dtype.is_floating_point and not torch.isfinite(x).all():
@@ -169,16 +172,18 @@ def validate_demos(
     return demos
 
 
-def save_demos(demos: TensorDictBase, path: str | Path, metadata: dict | None = None, *,
-               overwrite: bool = False) -> Path:
+def save_demos(
+    demos: TensorDictBase, path: str | Path, metadata: dict | None = None, *, overwrite: bool = False
+) -> Path:
     """Writes the dataset as a memory-mapped TensorDict folder plus ``metadata.json``.
     A folder that already holds files is refused unless ``overwrite`` (then the
     folder is replaced whole)."""
     path = Path(path)
     if path.exists() and (not path.is_dir() or any(path.iterdir())):
         if not overwrite:
-            raise ValueError(f"{path} already exists and is not empty; pass overwrite=true to replace it "
-                             "or choose another folder")
+            raise ValueError(
+                f"{path} already exists and is not empty; pass overwrite=true to replace it or choose another folder"
+            )
         shutil.rmtree(path) if path.is_dir() else path.unlink()
     demos.memmap(path)
     (path / "metadata.json").write_text(json.dumps(metadata or {}, indent=2))
@@ -186,7 +191,10 @@ def save_demos(demos: TensorDictBase, path: str | Path, metadata: dict | None = 
 
 
 def load_demos(
-    path: str | Path, *, obs_shape: Sequence[int] | None = None, obs_dtype: torch.dtype | None = None,
+    path: str | Path,
+    *,
+    obs_shape: Sequence[int] | None = None,
+    obs_dtype: torch.dtype | None = None,
     require_metadata: str | None = None,
 ) -> tuple[TensorDictBase, dict]:
     """Loads a dataset written by :func:`save_demos` and validates it. A missing
@@ -204,8 +212,10 @@ def load_demos(
         raise ValueError(f"{str(path)!r} is not a demo dataset written by save_demos: {err}") from err
     meta_file = path / "metadata.json"
     if require_metadata is not None and not meta_file.exists():
-        raise FileNotFoundError(f"{path}: no metadata.json (looked for {meta_file}), which says what the demos were "
-                                f"recorded on; these are not demos written by the recording recipe: {require_metadata}")
+        raise FileNotFoundError(
+            f"{path}: no metadata.json (looked for {meta_file}), which says what the demos were "
+            f"recorded on; these are not demos written by the recording recipe: {require_metadata}"
+        )
     metadata = read_json(meta_file, "demo metadata") if meta_file.exists() else {}
     return validate_demos(demos, obs_shape=obs_shape, obs_dtype=obs_dtype, source=str(path)), metadata
 

@@ -16,6 +16,7 @@ step within an episode) cannot be recovered from it.
     demos, meta = load_minari_demos("cartpole/expert-v0")
     python recipes/train.py --config-name cartpole demo.minari=cartpole/expert-v0
 """
+
 from __future__ import annotations
 
 import os
@@ -38,8 +39,14 @@ def minari_datasets_path(path: str | os.PathLike | None = None) -> Path:
     return Path(os.environ.get("MINARI_DATASETS_PATH", "~/.minari/datasets")).expanduser()
 
 
-def load_minari_demos(dataset_id: str, *, datasets_path: str | os.PathLike | None = None, keep_actions: bool = False,
-                      obs_shape=None, obs_dtype: torch.dtype | None = None) -> tuple[TensorDict, dict[str, Any]]:
+def load_minari_demos(
+    dataset_id: str,
+    *,
+    datasets_path: str | os.PathLike | None = None,
+    keep_actions: bool = False,
+    obs_shape=None,
+    obs_dtype: torch.dtype | None = None,
+) -> tuple[TensorDict, dict[str, Any]]:
     """The expert pairs of the local Minari dataset ``dataset_id`` and its metadata
     (``env_id``, ``env_kwargs``: the env it was recorded on, when the dataset names one;
     ``total_episodes``, ``total_steps``, ``dataset_id``).
@@ -48,18 +55,21 @@ def load_minari_demos(dataset_id: str, *, datasets_path: str | os.PathLike | Non
     are refused. Raises ``FileNotFoundError`` (with where it looked) when the dataset is
     not in the local cache, ``ImportError`` naming the install command without Minari."""
     try:
-        import minari
         import h5py  # noqa: F401
+        import minari
     except ImportError:
-        raise ImportError("demo.minari needs Minari with its HDF5 storage: pip install 'minari[hdf5]' "
-                          "(or pip install -e '.[minari]')") from None
+        raise ImportError(
+            "demo.minari needs Minari with its HDF5 storage: pip install 'minari[hdf5]' (or pip install -e '.[minari]')"
+        ) from None
     root = minari_datasets_path(datasets_path)
     h5 = root / dataset_id / "data" / "main_data.hdf5"
     if not h5.exists():
-        raise FileNotFoundError(f"demo.minari={dataset_id}: no such dataset in the local Minari cache {root} "
-                                f"(looked for {h5}); nothing is downloaded. Create it there with "
-                                "minari.create_dataset_from_buffers / minari.DataCollector, or point "
-                                "MINARI_DATASETS_PATH (demo.minari_path) at the folder that holds it")
+        raise FileNotFoundError(
+            f"demo.minari={dataset_id}: no such dataset in the local Minari cache {root} "
+            f"(looked for {h5}); nothing is downloaded. Create it there with "
+            "minari.create_dataset_from_buffers / minari.DataCollector, or point "
+            "MINARI_DATASETS_PATH (demo.minari_path) at the folder that holds it"
+        )
     previous = os.environ.get("MINARI_DATASETS_PATH")
     os.environ["MINARI_DATASETS_PATH"] = str(root)  # Minari reads its cache from there
     try:
@@ -68,8 +78,10 @@ def load_minari_demos(dataset_id: str, *, datasets_path: str | os.PathLike | Non
         for episode in dataset.iterate_episodes():
             obs = episode.observations
             if not isinstance(obs, np.ndarray):
-                raise ValueError(f"demo.minari={dataset_id}: observations are {type(obs).__name__} (a dict or tuple "
-                                 "space); this pipeline takes flat or discrete observations")
+                raise ValueError(
+                    f"demo.minari={dataset_id}: observations are {type(obs).__name__} (a dict or tuple "
+                    "space); this pipeline takes flat or discrete observations"
+                )
             obs = torch.as_tensor(obs)
             states.append(obs if obs.dtype.is_floating_point else obs.long())  # discrete states index tables
             actions.append(torch.as_tensor(np.asarray(episode.actions)))
@@ -85,6 +97,12 @@ def load_minari_demos(dataset_id: str, *, datasets_path: str | os.PathLike | Non
     validate_demos(pairs, obs_shape=obs_shape, obs_dtype=obs_dtype, source=f"demo.minari={dataset_id}")
     env_id = getattr(env_spec, "id", None)
     env_kwargs = dict(getattr(env_spec, "kwargs", None) or {}) if env_spec is not None else None
-    meta = {"dataset_id": dataset_id, "env_id": env_id, "env_kwargs": env_kwargs, "total_episodes": len(states),
-            "total_steps": int(pairs.batch_size.numel()), "source": str(root / dataset_id)}
+    meta = {
+        "dataset_id": dataset_id,
+        "env_id": env_id,
+        "env_kwargs": env_kwargs,
+        "total_episodes": len(states),
+        "total_steps": int(pairs.batch_size.numel()),
+        "source": str(root / dataset_id),
+    }
     return pairs, meta

@@ -4,6 +4,7 @@
 * ``epsilon``: fraction of demo transitions produced by a non-optimal action
   instead of the expert's.
 """
+
 from __future__ import annotations
 
 import torch

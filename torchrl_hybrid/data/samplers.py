@@ -1,4 +1,5 @@
 """Samplers that choose which expert pairs the BC term sees (rho in the paper)."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -153,6 +154,7 @@ class VisitedStateSampler(Sampler):
     def sample(self, storage: Storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         if self._index is None:
             self._build(storage)
+        assert self._index is not None  # set by _build
         order, counts, offsets = self._index
         v = self._visited.to(counts.device)
         inside = (v >= 0) & (v < self.n_states)

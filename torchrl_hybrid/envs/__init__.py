@@ -1,4 +1,5 @@
 """Environments: an exact batched tensor copy of toy-text envs, and builders."""
+
 from torchrl_hybrid.envs.builders import BACKENDS, make_gym_env, make_toy_text_env, observation_kind
 from torchrl_hybrid.envs.tabular import TabularEnv, TabularModel
 

@@ -10,6 +10,7 @@ wrapper drives it in ``SameStep`` mode and restores TorchRL's semantics:
 first one. Lives are exposed under ``"lives"`` so that demonstrations can be cut
 at the first life lost.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,7 +48,10 @@ def action_names(game: str) -> list[str]:
         raise ValueError(f"unknown Atari game {game!r}; ale-py has: {names}")
     ALEInterface.setLoggerMode(LoggerMode.Error)  # no ROM banner on stderr (a process-wide ALE setting)
     ale = ALEInterface()
-    ale.loadROM(roms.get_rom_path(_rom_name(game)))
+    rom = roms.get_rom_path(_rom_name(game))
+    if rom is None:
+        raise ValueError(f"ale-py lists {game!r} but ships no ROM file for it; reinstall ale-py")
+    ale.loadROM(rom)
     return [a.name for a in ale.getMinimalActionSet()]
 
 
@@ -102,10 +106,17 @@ class AtariEnv(EnvBase):
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         super().__init__(batch_size=(num_envs,), device="cpu")
         self.game = game
-        self.preprocessing = {"noop_max": noop_max, "frameskip": frameskip, "stack": stack, "size": size,
-                              "grayscale": True, "maxpool": True, "reward_clipping": reward_clipping,
-                              "max_episode_frames": max_episode_frames,
-                              "repeat_action_probability": repeat_action_probability}
+        self.preprocessing = {
+            "noop_max": noop_max,
+            "frameskip": frameskip,
+            "stack": stack,
+            "size": size,
+            "grayscale": True,
+            "maxpool": True,
+            "reward_clipping": reward_clipping,
+            "max_episode_frames": max_episode_frames,
+            "repeat_action_probability": repeat_action_probability,
+        }
         import ale_py.roms
 
         known = ale_py.roms.get_all_rom_ids()
@@ -114,9 +125,19 @@ class AtariEnv(EnvBase):
             raise ValueError(f"unknown Atari game {game!r}; ale-py {ale_py.__version__} has: {names}")
         try:
             self._env = AtariVectorEnv(
-                _rom_name(game), num_envs, num_threads=num_threads, autoreset_mode="SameStep",
-                noop_max=noop_max, frameskip=frameskip, stack_num=stack, img_height=size, img_width=size,
-                grayscale=True, maxpool=True, reward_clipping=False, episodic_life=False,
+                _rom_name(game),
+                num_envs,
+                num_threads=num_threads,
+                autoreset_mode="SameStep",
+                noop_max=noop_max,
+                frameskip=frameskip,
+                stack_num=stack,
+                img_height=size,
+                img_width=size,
+                grayscale=True,
+                maxpool=True,
+                reward_clipping=False,
+                episodic_life=False,
                 max_num_frames_per_episode=max_episode_frames,
                 repeat_action_probability=repeat_action_probability,
             )
@@ -125,11 +146,13 @@ class AtariEnv(EnvBase):
         self.reward_clipping = reward_clipping
         self._seed = seed
         self._started = False
-        self._pending = None  # reset observations of envs that just finished
-        self._lives = None
+        self._pending: torch.Tensor | None = None  # reset observations of envs that just finished
+        self._pending_mask: torch.Tensor | None = None
+        self._lives = torch.zeros(num_envs, 1, dtype=torch.int64)  # set by every reset and step
+        self._obs = torch.zeros(num_envs, stack, size, size, dtype=torch.uint8)
         n = num_envs
         obs_shape = (n, stack, size, size)
-        self.n_actions = int(self._env.single_action_space.n)
+        self.n_actions = int(self._env.single_action_space.n)  # type: ignore[attr-defined]  # Discrete
         self.observation_spec = Composite(
             observation=Bounded(0, 255, shape=obs_shape, dtype=torch.uint8),
             lives=Unbounded(shape=(n, 1), dtype=torch.int64),
@@ -163,7 +186,7 @@ class AtariEnv(EnvBase):
         else:
             # the vector env already started new episodes for the envs that ended
             mask = mask.reshape(n)
-            if self._pending is None or (mask & ~self._pending_mask).any():
+            if self._pending is None or self._pending_mask is None or (mask & ~self._pending_mask).any():
                 raise RuntimeError(
                     "AtariEnv can only reset envs whose episode just ended (ale-py resets them itself); "
                     "reset the whole batch instead"
@@ -180,8 +203,10 @@ class AtariEnv(EnvBase):
         n = heads[-1].out_features if heads else None
         if n is not None and n != self.n_actions:
             self.close()
-            raise ValueError(f"the policy has {n} actions but {self.game} has {self.n_actions}: "
-                             "is the checkpoint made for another game?")
+            raise ValueError(
+                f"the policy has {n} actions but {self.game} has {self.n_actions}: "
+                "is the checkpoint made for another game?"
+            )
 
     def send(self, action) -> None:
         """Starts a step of every game with ``action`` (``[num_envs]`` ints) and returns
@@ -220,8 +245,8 @@ class AtariEnv(EnvBase):
         done = term_t | trunc_t
         next_obs = obs_t
         if final is not None:
-            final = torch.from_numpy(np.ascontiguousarray(final))
-            next_obs = torch.where(done.view(n, 1, 1, 1), final, obs_t)
+            final_t = torch.from_numpy(np.ascontiguousarray(final))
+            next_obs = torch.where(done.view(n, 1, 1, 1), final_t, obs_t)
             self._pending, self._pending_mask = obs_t, done
         self._obs = next_obs
         self._lives = torch.as_tensor(lives, dtype=torch.int64).view(n, 1)

@@ -1,4 +1,5 @@
 """Environment builders used by the recipes, tests and notebooks."""
+
 from __future__ import annotations
 
 import gymnasium as gym
@@ -19,14 +20,18 @@ def observation_kind(env_id: str, env_kwargs: dict | None = None) -> tuple[str, 
     obs, act = env.observation_space, env.action_space
     env.close()
     if not isinstance(act, gym.spaces.Discrete):
-        raise ValueError(f"{env_id}: actions are {act}; the hybrid agent needs discrete actions (an inverse model "
-                         "over a finite action set)")
+        raise ValueError(
+            f"{env_id}: actions are {act}; the hybrid agent needs discrete actions (an inverse model "
+            "over a finite action set)"
+        )
     if isinstance(obs, gym.spaces.Discrete):
         return "discrete", int(obs.n), int(act.n)
     if isinstance(obs, gym.spaces.Box) and len(obs.shape) == 1:
         return "vector", int(obs.shape[0]), int(act.n)
-    raise ValueError(f"{env_id}: observations are {obs}; this pipeline takes discrete states or flat vectors "
-                     "(for Atari frames use recipes/atari.py)")
+    raise ValueError(
+        f"{env_id}: observations are {obs}; this pipeline takes discrete states or flat vectors "
+        "(for Atari frames use recipes/atari.py)"
+    )
 
 
 def make_gym_env(
@@ -77,14 +82,20 @@ def make_gym_env(
             seed=seed,
         )
     elif backend == "vector":
-        kwargs = dict(env_kwargs) if max_episode_steps is None else {**env_kwargs, "max_episode_steps": max_episode_steps}
-        venv = gym.vector.SyncVectorEnv([lambda: gym.make(env_id, **kwargs) for _ in range(num_envs)],
-                                        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+        kwargs = (
+            dict(env_kwargs) if max_episode_steps is None else {**env_kwargs, "max_episode_steps": max_episode_steps}
+        )
+        venv = gym.vector.SyncVectorEnv(
+            [lambda: gym.make(env_id, **kwargs) for _ in range(num_envs)],
+            autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+        )
         env = GymWrapper(venv, categorical_action_encoding=True)
         if seed is not None:
             env.set_seed(seed)
     else:
-        kwargs = dict(env_kwargs) if max_episode_steps is None else {**env_kwargs, "max_episode_steps": max_episode_steps}
+        kwargs = (
+            dict(env_kwargs) if max_episode_steps is None else {**env_kwargs, "max_episode_steps": max_episode_steps}
+        )
 
         def make_one():
             return GymEnv(env_id, categorical_action_encoding=True, **kwargs)

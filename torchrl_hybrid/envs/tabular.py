@@ -9,6 +9,7 @@ Observations and actions are integer indices, exactly as
 ``GymEnv(env_id, categorical_action_encoding=True)`` presents the same env, so a
 policy written for one runs unchanged on the other.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -66,7 +67,7 @@ class TabularModel:
         return self.next_state[s, a, k], self.reward[s, a, k], self.terminated[s, a, k]
 
     @classmethod
-    def from_gym(cls, env_id_or_env: str | gym.Env, **env_kwargs) -> "TabularModel":
+    def from_gym(cls, env_id_or_env: str | gym.Env, **env_kwargs) -> TabularModel:
         """Reads ``P`` and the start distribution of a gymnasium env
         (``gym.make(env_id, **env_kwargs)``, e.g. ``map_name="8x8", is_slippery=False``).
 
@@ -81,7 +82,14 @@ class TabularModel:
                 f"{base!r} has no transition table `P`: TabularEnv only works for "
                 "toy-text style envs. Use backend='gym' for this environment."
             )
-        n_states, n_actions = base.observation_space.n, base.action_space.n
+        if not isinstance(base.observation_space, gym.spaces.Discrete) or not isinstance(
+            base.action_space, gym.spaces.Discrete
+        ):
+            raise ValueError(
+                f"{base!r} has observation space {base.observation_space} and action space {base.action_space}: "
+                "TabularEnv needs Discrete ones. Use backend='gym' for this environment."
+            )
+        n_states, n_actions = int(base.observation_space.n), int(base.action_space.n)
         k = max(len(P[s][a]) for s in range(n_states) for a in range(n_actions))
         next_state = np.zeros((n_states, n_actions, k), np.int64)
         prob = np.zeros((n_states, n_actions, k), np.float64)
@@ -93,7 +101,7 @@ class TabularModel:
                     next_state[s, a, i], prob[s, a, i] = s2, p
                     reward[s, a, i], terminated[s, a, i] = r, d
                 # padding outcomes point at the first one, with probability 0
-                next_state[s, a, len(P[s][a]):] = next_state[s, a, 0]
+                next_state[s, a, len(P[s][a]) :] = next_state[s, a, 0]
         isd = getattr(base, "initial_state_distrib", None)
         if isd is None:
             isd = getattr(base, "initial_state_distribution", None)
@@ -160,7 +168,7 @@ class TabularEnv(EnvBase):
         self._false = torch.zeros((*batch_size, 1), dtype=torch.bool)
 
     @classmethod
-    def from_gym(cls, env_id: str, **kwargs) -> "TabularEnv":
+    def from_gym(cls, env_id: str, **kwargs) -> TabularEnv:
         """Builds the env from a gymnasium id, e.g. ``"Taxi-v4"``."""
         return cls(TabularModel.from_gym(env_id), **kwargs)
 

@@ -8,6 +8,7 @@ on from its last checkpoint (every tenth of its frames), so a sweep interrupted 
 the end of a session picks up where it stopped. The tables and figures describe every
 finished run in the folder, so sweeps of a few arms or seeds at a time add up.
 """
+
 from __future__ import annotations
 
 import csv
@@ -16,9 +17,10 @@ import math
 import threading
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -29,8 +31,18 @@ from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
-__all__ = ["CompareConfig", "ROBUST_ARMS", "SweepProgress", "run_compare", "analyse_compare", "load_runs",
-           "option_effects", "option_text", "overview_figure", "effects_figure"]
+__all__ = [
+    "CompareConfig",
+    "ROBUST_ARMS",
+    "SweepProgress",
+    "run_compare",
+    "analyse_compare",
+    "load_runs",
+    "option_effects",
+    "option_text",
+    "overview_figure",
+    "effects_figure",
+]
 
 # Named arms: a variant plus AtariConfig overrides, listed in ``variants`` like a variant
 # and run in ``<out_dir>/<game>/<arm>_s<seed>``, so that the paper's agent, a robust
@@ -41,22 +53,35 @@ __all__ = ["CompareConfig", "ROBUST_ARMS", "SweepProgress", "run_compare", "anal
 # (:func:`option_effects`); it is not an AtariConfig setting.
 ROBUST_ARMS: dict[str, dict] = {
     "hybrid_dual_soft": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_labels": "soft"}},
-    "hybrid_dual_gate": {"variant": "hybrid_dual", "base": "hybrid_dual_soft",
-                         "loss": {"bc_labels": "soft", "bc_confidence": 0.6}},
+    "hybrid_dual_gate": {
+        "variant": "hybrid_dual",
+        "base": "hybrid_dual_soft",
+        "loss": {"bc_labels": "soft", "bc_confidence": 0.6},
+    },
     "hybrid_dual_floor": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_entropy_floor": 1.0}},
     "hybrid_dual_ready": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
     # the readiness switch, then the BC weight falling to 0 over the next 2M frames
-    "hybrid_dual_ready_anneal": {"variant": "hybrid_dual", "base": "hybrid_dual_ready",
-                                 "loss": {"bc_ready_accuracy": 0.4, "bc_anneal_frames": 2_000_000}},
+    "hybrid_dual_ready_anneal": {
+        "variant": "hybrid_dual",
+        "base": "hybrid_dual_ready",
+        "loss": {"bc_ready_accuracy": 0.4, "bc_anneal_frames": 2_000_000},
+    },
     # soft labels whose weight falls to 0 over the first 2M frames after the switch-on
-    "hybrid_dual_soft_anneal": {"variant": "hybrid_dual", "base": "hybrid_dual_soft",
-                                "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
+    "hybrid_dual_soft_anneal": {
+        "variant": "hybrid_dual",
+        "base": "hybrid_dual_soft",
+        "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000},
+    },
     # the same with the inverse model on a CNN of its own (AtariConfig.idm_encoder) and each
     # parameter group clipped on its own (optim.clip=per_group), so that the inverse model's
     # gradient neither mixes with A2C's in the policy's CNN nor scales it down in a global clip
-    "hybrid_dual_soft_anneal_own": {"variant": "hybrid_dual", "base": "hybrid_dual_soft_anneal",
-                                    "idm_encoder": "own", "optim": {"clip": "per_group"},
-                                    "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000}},
+    "hybrid_dual_soft_anneal_own": {
+        "variant": "hybrid_dual",
+        "base": "hybrid_dual_soft_anneal",
+        "idm_encoder": "own",
+        "optim": {"clip": "per_group"},
+        "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000},
+    },
     # issue 32's options: labels with the agent's own policy divided out (they do not echo it) ...
     "hybrid_dual_prior": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_prior_floor": 0.05}},
     # ... and the BC gradient clipped apart from the RL gradient, with true and with inferred labels
@@ -86,9 +111,9 @@ class CompareConfig:
     base: dict = field(default_factory=dict)
     baselines: dict = field(default_factory=dict)
     label: str = ""  # shown after this comparison's variant names when baselines are drawn beside
-    launcher: str = "local"     # local (worker processes) | ray (Ray tasks; see torchrl_hybrid/utils/launch.py)
+    launcher: str = "local"  # local (worker processes) | ray (Ray tasks; see torchrl_hybrid/utils/launch.py)
     address: str | None = None  # ray: the cluster to join; None starts a local one
-    max_retries: int = 2        # ray: how often a run whose worker died is started again
+    max_retries: int = 2  # ray: how often a run whose worker died is started again
     arms: dict = field(default_factory=dict)  # more named arms, beside (or replacing) ROBUST_ARMS
     analyse_only: bool = False  # start no run: draw and tabulate the finished ones (demos not needed)
     # runs of out_dir made with other settings than asked now are refused (naming each difference);
@@ -135,7 +160,7 @@ class CompareConfig:
                 out[name] = (spec["base"], option_text(self.arm(name), self.arm(spec["base"])))
         return out
 
-    def validate(self) -> "CompareConfig":
+    def validate(self) -> CompareConfig:
         from torchrl_hybrid.experiments.arms import check_arms
         from torchrl_hybrid.trainers.atari import ATARI_VARIANTS
         from torchrl_hybrid.trainers.hybrid import get_variant
@@ -143,9 +168,11 @@ class CompareConfig:
         check_arms(self.arms, self.all_arms, ATARI_VARIANTS, (), "plus AtariConfig overrides")
         bad = sorted(set(self.variants) - set(ATARI_VARIANTS) - set(self.all_arms))
         if bad:
-            raise ValueError(f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)} "
-                             f"or the arms {list(self.all_arms)} (or define one: '+arms.NAME={{variant: hybrid_dual, "
-                             "loss: {bc_labels: soft}}')")
+            raise ValueError(
+                f"unknown Atari variant(s) {bad}; choose from {list(ATARI_VARIANTS)} "
+                f"or the arms {list(self.all_arms)} (or define one: '+arms.NAME={{variant: hybrid_dual, "
+                "loss: {bc_labels: soft}}')"
+            )
         if self.workers < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers}")
         if self.launcher not in LAUNCHERS:
@@ -156,12 +183,16 @@ class CompareConfig:
         if not self.analyse_only and any(get_variant(self.arm(v)[0]).bc is not None for v in self.variants):
             missing = [g for g in self.games if not self.demos.get(g)]
             if missing:
-                raise ValueError(f"no demos for {missing}: record them with recipes/atari_demos.py and pass "
-                                 + " ".join(f"+demos.{g}=<folder>" for g in missing))
+                raise ValueError(
+                    f"no demos for {missing}: record them with recipes/atari_demos.py and pass "
+                    + " ".join(f"+demos.{g}=<folder>" for g in missing)
+                )
             for g in self.games:
                 if not (Path(self.demos[g]) / "metadata.json").exists():
-                    raise FileNotFoundError(f"demos for {g}: {self.demos[g]!r} holds no dataset "
-                                            "(metadata.json); record it with recipes/atari_demos.py")
+                    raise FileNotFoundError(
+                        f"demos for {g}: {self.demos[g]!r} holds no dataset "
+                        "(metadata.json); record it with recipes/atari_demos.py"
+                    )
         return self
 
 
@@ -191,7 +222,10 @@ def _looks_like_compare(folder: Path) -> bool:
     """A comparison folder written before ``study.json``: ``<game>/<arm>_s<seed>`` run folders."""
     return (folder / "summary.json").exists() or any(
         p.is_dir() and p.name.rpartition("_s")[2].isdigit() and (p / "config.json").exists()
-        for g in folder.iterdir() if g.is_dir() for p in g.iterdir())
+        for g in folder.iterdir()
+        if g.is_dir()
+        for p in g.iterdir()
+    )
 
 
 def _one(job: tuple[dict, str]) -> tuple[str, float]:
@@ -209,7 +243,6 @@ def _one(job: tuple[dict, str]) -> tuple[str, float]:
     return name, time.perf_counter() - t0
 
 
-
 def _logged_frames(run_dir: Path) -> int:
     """The game frames of ``run_dir``'s last logged row (0 before its first one)."""
     f = run_dir / "metrics.csv"
@@ -222,7 +255,7 @@ def _logged_frames(run_dir: Path) -> int:
     except FileNotFoundError:
         return 0
     # only whole rows: the last piece may be a row being written, the first one cut by the seek
-    lines = lines[1 if start else 0:-1]
+    lines = lines[1 if start else 0 : -1]
     for line in reversed(lines):
         head = line.split(",", 1)[0]
         if head.isdigit():
@@ -236,22 +269,29 @@ class SweepProgress:
     bars are off). Frames a resumed run had already done before the sweep started
     count as done from the start, so the rate and time left are this sweep's own."""
 
-    def __init__(self, run_dirs: Sequence[Path], frames_per_run: int, interval: float = 30.0,
-                 disable: bool = False):
+    def __init__(self, run_dirs: Sequence[Path], frames_per_run: int, interval: float = 30.0, disable: bool = False):
         from tqdm import tqdm
 
         self.run_dirs = [Path(d) for d in run_dirs]
         self.frames_per_run = int(frames_per_run)
         self.interval = interval
         start = self.frames()
-        self.bar = tqdm(total=len(self.run_dirs) * self.frames_per_run, initial=start, unit="frame",
-                        unit_scale=True, desc=f"{len(self.run_dirs)} run(s)", disable=disable)
+        self.bar = tqdm(
+            total=len(self.run_dirs) * self.frames_per_run,
+            initial=start,
+            unit="frame",
+            unit_scale=True,
+            desc=f"{len(self.run_dirs)} run(s)",
+            disable=disable,
+        )
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._poll, daemon=True)
 
     def frames(self) -> int:
-        return sum(self.frames_per_run if (d / "summary.json").exists()
-                   else min(_logged_frames(d), self.frames_per_run) for d in self.run_dirs)
+        return sum(
+            self.frames_per_run if (d / "summary.json").exists() else min(_logged_frames(d), self.frames_per_run)
+            for d in self.run_dirs
+        )
 
     def refresh(self) -> int:
         self.bar.n = self.frames()
@@ -265,7 +305,7 @@ class SweepProgress:
         while not self._stop.wait(self.interval):
             self.refresh()
 
-    def __enter__(self) -> "SweepProgress":
+    def __enter__(self) -> SweepProgress:
         if not self.bar.disable:  # a hidden bar needs no polling of the runs' files
             self._thread.start()
         return self
@@ -288,14 +328,23 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
 
     cfg.validate()
     if cfg.analyse_only:
-        todo = [f"{g}/{n}_s{s}" for g in cfg.games for n in cfg.variants for s in cfg.seeds
-                if not (_run_dir(cfg, g, n, s) / "summary.json").exists()]
-        print(f"analyse_only: {len(todo)} run(s) not finished, left out" + (f": {', '.join(todo)}" if todo else ""),
-              flush=True)
+        todo = [
+            f"{g}/{n}_s{s}"
+            for g in cfg.games
+            for n in cfg.variants
+            for s in cfg.seeds
+            if not (_run_dir(cfg, g, n, s) / "summary.json").exists()
+        ]
+        print(
+            f"analyse_only: {len(todo)} run(s) not finished, left out" + (f": {', '.join(todo)}" if todo else ""),
+            flush=True,
+        )
         result = analyse_compare(cfg)
         if not result:
-            raise FileNotFoundError(f"analyse_only: no finished run of {list(cfg.games)} x {list(cfg.variants)} "
-                                    f"x seeds {list(cfg.seeds)} in {cfg.out_dir!r} (nor in the baselines)")
+            raise FileNotFoundError(
+                f"analyse_only: no finished run of {list(cfg.games)} x {list(cfg.variants)} "
+                f"x seeds {list(cfg.seeds)} in {cfg.out_dir!r} (nor in the baselines)"
+            )
         return result
     threads = cfg.default_threads
     planned = []
@@ -304,36 +353,69 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
             variant, overrides = cfg.arm(name)
             for seed in cfg.seeds:
                 out = _run_dir(cfg, game, name, seed)
-                d = merge_dicts({"threads": threads, "env": {"num_threads": threads},
-                            "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"}}, cfg.base)
+                d = merge_dicts(
+                    {
+                        "threads": threads,
+                        "env": {"num_threads": threads},
+                        "logger": {"progress_bar": cfg.workers == 1 and cfg.launcher == "local"},
+                    },
+                    cfg.base,
+                )
                 d = merge_dicts(d, overrides)
-                d = merge_dicts(d, {"variant": variant, "seed": seed, "total_frames": cfg.total_frames,
-                               "out_dir": str(out), "env": {"game": game},
-                               "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None}})
+                d = merge_dicts(
+                    d,
+                    {
+                        "variant": variant,
+                        "seed": seed,
+                        "total_frames": cfg.total_frames,
+                        "out_dir": str(out),
+                        "env": {"game": game},
+                        "demo": {"path": cfg.demos.get(game) if variant != "a2c" else None},
+                    },
+                )
                 planned.append(planned_run(f"{game}/{name}_s{seed}", out, d, atari_config))
     with open_study(cfg.out_dir, "atari_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
-        named, changed = runs_to_do(planned, cfg.out_dir, _RESUME_KEYS + STUDY_KEYS, ignore=_RESUME_IGNORE,
-                                    defaults=dataclasses.asdict(AtariConfig()), overwrite=cfg.overwrite)
+        named, changed = runs_to_do(
+            planned,
+            cfg.out_dir,
+            _RESUME_KEYS + STUDY_KEYS,
+            ignore=_RESUME_IGNORE,
+            defaults=dataclasses.asdict(AtariConfig()),
+            overwrite=cfg.overwrite,
+        )
         jobs = [(d, n) for n, d in named]
-        print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else "")
-              + (f" ({len(changed)} again with the new settings)" if changed else ""), flush=True)
+        print(
+            f"{len(jobs)} run(s) to do in {cfg.out_dir}"
+            + (" on Ray" if cfg.launcher == "ray" else "")
+            + (f" ({len(changed)} again with the new settings)" if changed else ""),
+            flush=True,
+        )
         t0 = time.perf_counter()
         # one run alone shows its own bar; side by side (or on a cluster whose workers write
         # elsewhere) they don't, and this bar follows their metrics.csv here
         bar_off = not jobs or (cfg.workers == 1 and cfg.launcher == "local") or cfg.address is not None
         with SweepProgress([Path(d["out_dir"]) for d, _ in jobs], cfg.total_frames, disable=bar_off) as progress:
             # a run takes `threads` CPUs (torch + ALE threads) of a Ray node
-            for name, secs in run_jobs(_one, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
-                                       cpus_per_job=threads if cfg.launcher == "ray" else 1,
-                                       max_retries=cfg.max_retries, fresh_process=True):
+            for name, secs in run_jobs(
+                _one,
+                jobs,
+                launcher=cfg.launcher,
+                workers=cfg.workers,
+                address=cfg.address,
+                cpus_per_job=threads if cfg.launcher == "ray" else 1,
+                max_retries=cfg.max_retries,
+                fresh_process=True,
+            ):
                 progress.write(f"  {name}: {secs / 60:.1f} min ({time.perf_counter() - t0:.0f} s since start)")
         return analyse_compare(cfg)
 
 
 def _load_run(d: Path, seed: int) -> dict:
     with open(d / "metrics.csv") as f:
-        rows = [upgrade_accuracy_keys({k: float(v) if v not in ("", None) else math.nan for k, v in r.items()})
-                for r in csv.DictReader(f)]
+        rows = [
+            upgrade_accuracy_keys({k: float(v) if v not in ("", None) else math.nan for k, v in r.items()})
+            for r in csv.DictReader(f)
+        ]
     summary = upgrade_accuracy_keys(read_json(d / "summary.json", "run summary"))
     config = read_json(d / "config.json", "run config") if (d / "config.json").exists() else {}
     return {"seed": seed, "rows": rows, "summary": summary, "config": config}
@@ -371,7 +453,8 @@ def load_runs(cfg: CompareConfig, game: str) -> dict[str, list[dict]]:
         for variant, seeds in _finished_runs(Path(folder) / game).items():
             for seed in seeds:
                 out.setdefault(f"{variant} ({label})", []).append(
-                    _load_run(Path(folder) / game / f"{variant}_s{seed}", seed))
+                    _load_run(Path(folder) / game / f"{variant}_s{seed}", seed)
+                )
     return out
 
 
@@ -414,7 +497,8 @@ def _reference(rows: list[dict]) -> dict | None:
     """The row every arm is compared with: ``a2c``, or where the comparison has none of its
     own, the first ``a2c (<label>)`` of a baseline folder."""
     return next((t for t in rows if t["variant"] == REFERENCE), None) or next(
-        (t for t in rows if t["variant"].startswith(f"{REFERENCE} (")), None)
+        (t for t in rows if t["variant"].startswith(f"{REFERENCE} (")), None
+    )
 
 
 def _auc_test(a, b, more: str, less: str, same: str) -> dict:
@@ -426,11 +510,19 @@ def _auc_test(a, b, more: str, less: str, same: str) -> dict:
     a, b = np.array(a, float), np.array(b, float)
     a, b = a[np.isfinite(a)], b[np.isfinite(b)]
     if min(len(a), len(b)) < 3:
-        return {"diff": None, "ci95": None, "p": None,
-                "verdict": f"too few seeds ({len(a)} vs {len(b)} finished with a score; 3 each needed)"}
+        return {
+            "diff": None,
+            "ci95": None,
+            "p": None,
+            "verdict": f"too few seeds ({len(a)} vs {len(b)} finished with a score; 3 each needed)",
+        }
     d, lo, hi = mean_diff_ci(a, b)
-    return {"diff": round(d, 2), "ci95": [round(lo, 2), round(hi, 2)], "p": round(permutation_p(a, b), 3),
-            "verdict": more if lo > 0 else less if hi < 0 else same}
+    return {
+        "diff": round(d, 2),
+        "ci95": [round(lo, 2), round(hi, 2)],
+        "p": round(permutation_p(a, b), 3),
+        "verdict": more if lo > 0 else less if hi < 0 else same,
+    }
 
 
 def _versus_reference(table: list[dict]) -> None:
@@ -446,8 +538,14 @@ def _versus_reference(table: list[dict]) -> None:
         if ref is None or t is ref:
             continue
         test = _auc_test(t["auc_per_seed"], ref["auc_per_seed"], "faster", "slower", "not distinguishable")
-        t.update({"auc_minus_a2c": test["diff"], "auc_minus_a2c_ci95": test["ci95"], "auc_vs_a2c_p": test["p"],
-                  "verdict_vs_a2c": test["verdict"]})
+        t.update(
+            {
+                "auc_minus_a2c": test["diff"],
+                "auc_minus_a2c_ci95": test["ci95"],
+                "auc_vs_a2c_p": test["p"],
+                "verdict_vs_a2c": test["verdict"],
+            }
+        )
 
 
 def _split_label(name: str) -> tuple[str, str]:
@@ -466,8 +564,16 @@ def option_effects(table: list[dict], bases: dict[str, tuple[str, str]]) -> None
     why there is no verdict. Rows without a base get empty fields."""
     by_name = {t["variant"]: t for t in table}
     for t in table:
-        t.update({"option": "", "option_base": "", "auc_minus_base": None, "auc_minus_base_ci95": None,
-                  "auc_vs_base_p": None, "option_effect": ""})
+        t.update(
+            {
+                "option": "",
+                "option_base": "",
+                "auc_minus_base": None,
+                "auc_minus_base_ci95": None,
+                "auc_vs_base_p": None,
+                "option_effect": "",
+            }
+        )
         arm, label = _split_label(t["variant"])
         if arm not in bases:
             continue
@@ -477,17 +583,26 @@ def option_effects(table: list[dict], bases: dict[str, tuple[str, str]]) -> None
         if base is None:
             t["option_effect"] = f"no finished {base_arm}{label} run here to compare with"
             continue
-        test = _auc_test(t["auc_per_seed"], base["auc_per_seed"], "raises the AUC", "lowers the AUC",
-                         "no measurable effect")
-        t.update({"auc_minus_base": test["diff"], "auc_minus_base_ci95": test["ci95"], "auc_vs_base_p": test["p"],
-                  "option_effect": test["verdict"]})
+        test = _auc_test(
+            t["auc_per_seed"], base["auc_per_seed"], "raises the AUC", "lowers the AUC", "no measurable effect"
+        )
+        t.update(
+            {
+                "auc_minus_base": test["diff"],
+                "auc_minus_base_ci95": test["ci95"],
+                "auc_vs_base_p": test["p"],
+                "option_effect": test["verdict"],
+            }
+        )
 
 
-def _summary_markdown(game: str, table: list[dict], window: int,
-                      milestones: dict[str, tuple[list[int], list[float]]] | None = None) -> str:
+def _summary_markdown(
+    game: str, table: list[dict], window: int, milestones: dict[str, tuple[list[int], list[float]]] | None = None
+) -> str:
     """The per-game table of ``summary.csv`` as Markdown, to paste into a README, and
     with ``milestones`` (variant -> frames, mean score over seeds there) a second table
     of the score along the run."""
+
     def num(x) -> str:
         return "–" if x is None or not math.isfinite(x) else f"{x:.2f}"
 
@@ -497,38 +612,59 @@ def _summary_markdown(game: str, table: list[dict], window: int,
     def seeds(xs) -> str:
         return ", ".join(num(x) for x in xs)
 
-    lines = [f"### {game}", "",
-             f"Score: mean raw episode score over the last {window / 1000:g}k game frames; final = at the end, "
-             "AUC = mean of that curve over the run (higher = learned faster). Intervals: bootstrap 95 % over "
-             "seeds (3 or more); AUC − a2c: difference of means, its bootstrap interval and a permutation-test p "
-             "(3 seeds against 3: p ≥ 0.1).", "",
-             "| variant | seeds | final per seed | final mean | AUC per seed | AUC mean | IDM accuracy | "
-             "AUC − a2c | faster than a2c? |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"### {game}",
+        "",
+        f"Score: mean raw episode score over the last {window / 1000:g}k game frames; final = at the end, "
+        "AUC = mean of that curve over the run (higher = learned faster). Intervals: bootstrap 95 % over "
+        "seeds (3 or more); AUC − a2c: difference of means, its bootstrap interval and a permutation-test p "
+        "(3 seeds against 3: p ≥ 0.1).",
+        "",
+        "| variant | seeds | final per seed | final mean | AUC per seed | AUC mean | IDM accuracy | "
+        "AUC − a2c | faster than a2c? |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for t in table:
         acc = t[IDM_ACCURACY_EXPERT]
-        diff = ("–" if t["auc_minus_a2c"] is None else
-                f"{t['auc_minus_a2c']:+.2f} [{t['auc_minus_a2c_ci95'][0]:+.2f}, {t['auc_minus_a2c_ci95'][1]:+.2f}],"
-                f" p = {t['auc_vs_a2c_p']:.2f}")
-        lines.append(f"| {t['variant']} | {t['seeds']} | {seeds(t['final_per_seed'])} | "
-                     f"{num(t['final_mean'])}{ci(t['final_ci95'])} | {seeds(t['auc_per_seed'])} | "
-                     f"{num(t['auc_mean'])}{ci(t['auc_ci95'])} | {'–' if acc is None else f'{acc:.1%}'} | {diff} | "
-                     f"{t['verdict_vs_a2c'] or '–'} |")
+        diff = (
+            "–"
+            if t["auc_minus_a2c"] is None
+            else f"{t['auc_minus_a2c']:+.2f} [{t['auc_minus_a2c_ci95'][0]:+.2f}, {t['auc_minus_a2c_ci95'][1]:+.2f}],"
+            f" p = {t['auc_vs_a2c_p']:.2f}"
+        )
+        lines.append(
+            f"| {t['variant']} | {t['seeds']} | {seeds(t['final_per_seed'])} | "
+            f"{num(t['final_mean'])}{ci(t['final_ci95'])} | {seeds(t['auc_per_seed'])} | "
+            f"{num(t['auc_mean'])}{ci(t['auc_ci95'])} | {'–' if acc is None else f'{acc:.1%}'} | {diff} | "
+            f"{t['verdict_vs_a2c'] or '–'} |"
+        )
     effects = [t for t in table if t.get("option")]
     if effects:
-        lines += ["", "Effect of each option: the arm's AUC minus that of the arm without the option (its base), "
-                  "the difference's bootstrap 95 % interval and a permutation-test p:", "",
-                  "| arm | option | without it (base) | AUC − base | effect |", "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "Effect of each option: the arm's AUC minus that of the arm without the option (its base), "
+            "the difference's bootstrap 95 % interval and a permutation-test p:",
+            "",
+            "| arm | option | without it (base) | AUC − base | effect |",
+            "|---|---|---|---|---|",
+        ]
         for t in effects:
-            diff = ("–" if t["auc_minus_base"] is None else
-                    f"{t['auc_minus_base']:+.2f} [{t['auc_minus_base_ci95'][0]:+.2f}, "
-                    f"{t['auc_minus_base_ci95'][1]:+.2f}], p = {t['auc_vs_base_p']:.2f}")
+            diff = (
+                "–"
+                if t["auc_minus_base"] is None
+                else f"{t['auc_minus_base']:+.2f} [{t['auc_minus_base_ci95'][0]:+.2f}, "
+                f"{t['auc_minus_base_ci95'][1]:+.2f}], p = {t['auc_vs_base_p']:.2f}"
+            )
             lines.append(f"| {t['variant']} | `{t['option']}` | {t['option_base']} | {diff} | {t['option_effect']} |")
     if milestones:
         frames = next(iter(milestones.values()))[0]
-        lines += ["", f"Mean score over seeds (last {window / 1000:g}k frames) along the run:", "",
-                  "| variant | " + " | ".join(f"{x / 1e6:g}M" for x in frames) + " |",
-                  "|---|" + "---|" * len(frames)]
+        lines += [
+            "",
+            f"Mean score over seeds (last {window / 1000:g}k frames) along the run:",
+            "",
+            "| variant | " + " | ".join(f"{x / 1e6:g}M" for x in frames) + " |",
+            "|---|" + "---|" * len(frames),
+        ]
         lines += [f"| {v} | " + " | ".join(num(x) for x in scores) + " |" for v, (_, scores) in milestones.items()]
     return "\n".join(lines) + "\n"
 
@@ -555,15 +691,37 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         gdir = root / game
         with open(gdir / "curves.csv", "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["variant", "seed", "frames", "episodes", "return_mean", IDM_ACCURACY_EXPERT, IDM_ACCURACY_AGENT,
-                        "entropy", "loss_bc", "grad_norm"])
+            w.writerow(
+                [
+                    "variant",
+                    "seed",
+                    "frames",
+                    "episodes",
+                    "return_mean",
+                    IDM_ACCURACY_EXPERT,
+                    IDM_ACCURACY_AGENT,
+                    "entropy",
+                    "loss_bc",
+                    "grad_norm",
+                ]
+            )
             for variant, rs in runs.items():
                 for r in rs:
                     for row in r["rows"]:
-                        w.writerow([variant, r["seed"], int(row["frames"]), int(row.get("episodes", 0)),
-                                    row.get("return_mean", math.nan), row.get(IDM_ACCURACY_EXPERT, ""),
-                                    row.get(IDM_ACCURACY_AGENT, ""), row.get("entropy", ""), row.get("loss_bc", ""),
-                                    row.get(grad_norm_key(row), "")])
+                        w.writerow(
+                            [
+                                variant,
+                                r["seed"],
+                                int(row["frames"]),
+                                int(row.get("episodes", 0)),
+                                row.get("return_mean", math.nan),
+                                row.get(IDM_ACCURACY_EXPERT, ""),
+                                row.get(IDM_ACCURACY_AGENT, ""),
+                                row.get("entropy", ""),
+                                row.get("loss_bc", ""),
+                                row.get(grad_norm_key(row), ""),
+                            ]
+                        )
         # the logged frames of the longest run; the window shrinks for short runs
         longest = max((r["rows"] for rs in runs.values() for r in rs), key=len)
         grid = np.array([row["frames"] for row in longest])
@@ -585,25 +743,35 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             final = curves[:, -1]
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                milestones[variant] = (marks, np.nanmean([_score_curve(r["rows"], np.array(marks), win) for r in rs],
-                                                         0).tolist())
+                milestones[variant] = (
+                    marks,
+                    np.nanmean([_score_curve(r["rows"], np.array(marks), win) for r in rs], 0).tolist(),
+                )
             with warnings.catch_warnings():  # NaN where no episode has finished yet
                 warnings.simplefilter("ignore", RuntimeWarning)
                 auc = np.nanmean(curves, 1)  # mean of the smoothed curve = normalised area under it
                 final_mean, auc_mean = float(np.nanmean(final)), float(np.nanmean(auc))
             acc = [r["summary"].get(IDM_ACCURACY_EXPERT) for r in rs]
-            table.append({
-                "variant": variant, "seeds": len(rs),
-                "final_mean": final_mean, "final_ci95": _ci(final), "final_per_seed": [round(float(x), 2) for x in final],
-                "auc_mean": auc_mean, "auc_ci95": _ci(auc), "auc_per_seed": [round(float(x), 2) for x in auc],
-                IDM_ACCURACY_EXPERT: None if acc[0] is None else float(np.mean(acc)),
-                "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs])),
-            })
+            table.append(
+                {
+                    "variant": variant,
+                    "seeds": len(rs),
+                    "final_mean": final_mean,
+                    "final_ci95": _ci(final),
+                    "final_per_seed": [round(float(x), 2) for x in final],
+                    "auc_mean": auc_mean,
+                    "auc_ci95": _ci(auc),
+                    "auc_per_seed": [round(float(x), 2) for x in auc],
+                    IDM_ACCURACY_EXPERT: None if acc[0] is None else float(np.mean(acc)),
+                    "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs])),
+                }
+            )
             _per_seed(axes[1], rs, IDM_ACCURACY_EXPERT, ci, variant)
             _per_seed(axes[2], rs, "entropy", ci, variant)
             for k, r in enumerate(rs):  # one column or the other, per run
-                _per_seed(axes[3], [r], grad_norm_key(r["rows"][0] if r["rows"] else {}), ci,
-                          variant if k == 0 else None)
+                _per_seed(
+                    axes[3], [r], grad_norm_key(r["rows"][0] if r["rows"] else {}), ci, variant if k == 0 else None
+                )
         axes[1].set_ylim(0, 1)
         clips = {r["config"].get("optim", {}).get("max_grad_norm") for rs in runs.values() for r in rs} - {None}
         for c in clips:  # the gradient is scaled down to this norm before each step (optim.max_grad_norm)
@@ -611,12 +779,25 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
         if any(ax_line.get_ydata().size for ax_line in axes[3].get_lines()):
             axes[3].set_yscale("log")
         for ax, ylabel, title, loc in (
-            (axes[0], f"episode score (raw), mean over last {win // 1000}k frames", f"{game}: hybrid vs A2C",
-             "upper left"),
+            (
+                axes[0],
+                f"episode score (raw), mean over last {win // 1000}k frames",
+                f"{game}: hybrid vs A2C",
+                "upper left",
+            ),
             (axes[1], "inferred = true expert action", "inverse-model accuracy on demo pairs", "lower right"),
-            (axes[2], "policy entropy (nats) on the agent's batch", "policy entropy (BC collapse shows as ~0)",
-             "center right"),
-            (axes[3], "gradient norm before the clip (per-group clip: the policy's)", "gradient norm of each update", "upper left"),
+            (
+                axes[2],
+                "policy entropy (nats) on the agent's batch",
+                "policy entropy (BC collapse shows as ~0)",
+                "center right",
+            ),
+            (
+                axes[3],
+                "gradient norm before the clip (per-group clip: the policy's)",
+                "gradient norm of each update",
+                "upper left",
+            ),
         ):
             ax.set(xlabel="game frames", ylabel=ylabel, title=title)
             ax.grid(alpha=0.3)
@@ -633,23 +814,37 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             w.writerows(table)
         (gdir / "summary.md").write_text(_summary_markdown(game, table, win, milestones))
         result[game] = table
+
+        def ci_txt(c):
+            return f" [{c[0]:.2f}, {c[1]:.2f}]" if c else ""
+
         for t in table:
-            ci_txt = (lambda c: f" [{c[0]:.2f}, {c[1]:.2f}]" if c else "")
-            print(f"{game:10s} {t['variant']:12s} seeds {t['seeds']}  final {t['final_mean']:7.2f}{ci_txt(t['final_ci95'])} "
-                  f"{t['final_per_seed']}  AUC {t['auc_mean']:7.2f}{ci_txt(t['auc_ci95'])} {t['auc_per_seed']}"
-                  + (f"  IDM acc {t[IDM_ACCURACY_EXPERT]:.1%}" if t[IDM_ACCURACY_EXPERT] is not None else "")
-                  + (f"  AUC - a2c {t['auc_minus_a2c']:+.2f}{ci_txt(t['auc_minus_a2c_ci95'])} p {t['auc_vs_a2c_p']:.2f}"
-                     f" ({t['verdict_vs_a2c']})" if t["auc_minus_a2c"] is not None else "")
-                  + (f"  [{t['option']}: AUC - {t['option_base']} {t['auc_minus_base']:+.2f}"
-                     f"{ci_txt(t['auc_minus_base_ci95'])} p {t['auc_vs_base_p']:.2f} ({t['option_effect']})]"
-                     if t.get("auc_minus_base") is not None else ""))
+            print(
+                f"{game:10s} {t['variant']:12s} seeds {t['seeds']}  final {t['final_mean']:7.2f}{ci_txt(t['final_ci95'])} "
+                f"{t['final_per_seed']}  AUC {t['auc_mean']:7.2f}{ci_txt(t['auc_ci95'])} {t['auc_per_seed']}"
+                + (f"  IDM acc {t[IDM_ACCURACY_EXPERT]:.1%}" if t[IDM_ACCURACY_EXPERT] is not None else "")
+                + (
+                    f"  AUC - a2c {t['auc_minus_a2c']:+.2f}{ci_txt(t['auc_minus_a2c_ci95'])} p {t['auc_vs_a2c_p']:.2f}"
+                    f" ({t['verdict_vs_a2c']})"
+                    if t["auc_minus_a2c"] is not None
+                    else ""
+                )
+                + (
+                    f"  [{t['option']}: AUC - {t['option_base']} {t['auc_minus_base']:+.2f}"
+                    f"{ci_txt(t['auc_minus_base_ci95'])} p {t['auc_vs_base_p']:.2f} ({t['option_effect']})]"
+                    if t.get("auc_minus_base") is not None
+                    else ""
+                )
+            )
     # one file for the whole out_dir: a comparison of other games (or a later one of some
     # games) updates their entries and keeps the rest
     path = root / "summary.json"
     try:
         kept = read_json(path, "comparison summary") if path.exists() else {}
     except json.JSONDecodeError:  # derived data: rewritten from the runs' own files
-        warnings.warn(f"{path} is not valid JSON (truncated?); rewriting it with this comparison's games only")
+        warnings.warn(
+            f"{path} is not valid JSON (truncated?); rewriting it with this comparison's games only", stacklevel=2
+        )
         kept = {}
     merged = {**kept, **result}
     path.write_text(json.dumps(merged, indent=2))
@@ -661,8 +856,11 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
 
 
 def _is_table(rows: Any) -> bool:
-    return isinstance(rows, list) and bool(rows) and all(
-        isinstance(t, dict) and {"variant", "auc_per_seed", "final_per_seed"} <= set(t) for t in rows)
+    return (
+        isinstance(rows, list)
+        and bool(rows)
+        and all(isinstance(t, dict) and {"variant", "auc_per_seed", "final_per_seed"} <= set(t) for t in rows)
+    )
 
 
 def overview_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[str, list[str]]:
@@ -684,13 +882,21 @@ def overview_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[st
         if _is_table(rows):
             games.append(game)
         else:
-            warnings.warn(f"overview: {game!r} in summary.json is not a comparison table; left out of the figure "
-                          "(rerun recipes/atari_compare.py analyse_only=true for it to rewrite the entry)")
+            warnings.warn(
+                f"overview: {game!r} in summary.json is not a comparison table; left out of the figure "
+                "(rerun recipes/atari_compare.py analyse_only=true for it to rewrite the entry)",
+                stacklevel=2,
+            )
     if not games:
         raise ValueError("overview: summary holds no comparison table (run recipes/atari_compare.py first)")
     heights = [1 + len(summary[g]) for g in games]
-    fig, axes = plt.subplots(len(games), 2, figsize=(15, 0.55 * sum(heights) + 0.6 * len(games)),
-                             gridspec_kw={"height_ratios": heights}, squeeze=False)
+    fig, axes = plt.subplots(
+        len(games),
+        2,
+        figsize=(15, 0.55 * sum(heights) + 0.6 * len(games)),
+        gridspec_kw={"height_ratios": heights},
+        squeeze=False,
+    )
     # one colour per arm across games (a2c first)
     names = list(dict.fromkeys([REFERENCE] + [t["variant"] for g in games for t in summary[g]]))
     colour = {n: f"C{i % 10}" for i, n in enumerate(names)}
@@ -713,8 +919,9 @@ def overview_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[st
                 interval = t.get(f"{key}_ci95")
                 if interval:
                     m = t[f"{key}_mean"]
-                    ax.errorbar([m], [yi], xerr=[[m - interval[0]], [interval[1] - m]], fmt="D", color=c,
-                                ms=7, capsize=4, lw=2)
+                    ax.errorbar(
+                        [m], [yi], xerr=[[m - interval[0]], [interval[1] - m]], fmt="D", color=c, ms=7, capsize=4, lw=2
+                    )
                 elif np.isfinite(seeds).any():
                     ax.plot([np.nanmean(seeds)], [yi], "D", color=c, ms=7, mfc="white")
             ax.set_yticks(y, [f"{t['variant']} ({t.get('seeds', len(t[f'{key}_per_seed']))})" for t in order])
@@ -726,15 +933,28 @@ def overview_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[st
                 text = verdict if verdict in ("faster", "slower", "not distinguishable") else "< 3 seeds"
                 if t.get("auc_vs_a2c_p") is not None:
                     text += f" (p = {t['auc_vs_a2c_p']:.2f})"
-                ax_auc.annotate(text, (1.0, yi), xycoords=("axes fraction", "data"), xytext=(4, 0),
-                                textcoords="offset points", va="center", fontsize=8,
-                                color={"faster": "green", "slower": "firebrick"}.get(verdict, "0.35"))
+                ax_auc.annotate(
+                    text,
+                    (1.0, yi),
+                    xycoords=("axes fraction", "data"),
+                    xytext=(4, 0),
+                    textcoords="offset points",
+                    va="center",
+                    fontsize=8,
+                    color={"faster": "green", "slower": "firebrick"}.get(verdict, "0.35"),
+                )
         ax_auc.set_title(f"{game}: AUC (mean score over the run; higher = learned faster)", fontsize=10)
         ax_final.set_title(f"{game}: final score (end of the run)", fontsize=10)
-    fig.text(0.01, 0.003, "Raw episode score, mean over the analysis window (200k game frames by default). Dots: seeds; diamond: mean "
-             "(filled, with its bootstrap 95 % interval, where 3 or more seeds); line and band: a2c's mean and "
-             "interval.\nBeside the AUC: the arm's verdict against a2c (interval of the AUC difference, "
-             "permutation p). (n) = seeds.", fontsize=8, va="bottom")
+    fig.text(
+        0.01,
+        0.003,
+        "Raw episode score, mean over the analysis window (200k game frames by default). Dots: seeds; diamond: mean "
+        "(filled, with its bootstrap 95 % interval, where 3 or more seeds); line and band: a2c's mean and "
+        "interval.\nBeside the AUC: the arm's verdict against a2c (interval of the AUC difference, "
+        "permutation p). (n) = seeds.",
+        fontsize=8,
+        va="bottom",
+    )
     fig.tight_layout(rect=(0, 0.035, 1, 1), w_pad=9)
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -753,13 +973,17 @@ def effects_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[str
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = {g: [t for t in ts if t.get("auc_minus_base") is not None]
-            for g, ts in summary.items() if _is_table(ts)}
+    rows = {g: [t for t in ts if t.get("auc_minus_base") is not None] for g, ts in summary.items() if _is_table(ts)}
     rows = {g: ts for g, ts in rows.items() if ts}
     if not rows:
         raise ValueError("effects: no arm in summary has a measured option effect (3 seeds of it and of its base)")
-    fig, axes = plt.subplots(len(rows), 1, figsize=(11, sum(0.9 + 0.5 * len(ts) for ts in rows.values()) + 0.6),
-                             gridspec_kw={"height_ratios": [1 + len(ts) for ts in rows.values()]}, squeeze=False)
+    fig, axes = plt.subplots(
+        len(rows),
+        1,
+        figsize=(11, sum(0.9 + 0.5 * len(ts) for ts in rows.values()) + 0.6),
+        gridspec_kw={"height_ratios": [1 + len(ts) for ts in rows.values()]},
+        squeeze=False,
+    )
     colour = {"raises the AUC": "green", "lowers the AUC": "firebrick"}
     drawn = {}
     for ax, (game, ts) in zip(axes[:, 0], rows.items()):
@@ -768,18 +992,30 @@ def effects_figure(summary: dict[str, list[dict]], path: str | Path) -> dict[str
             d, (lo, hi) = t["auc_minus_base"], t["auc_minus_base_ci95"]
             c = colour.get(t["option_effect"], "0.35")
             ax.errorbar([d], [yi], xerr=[[d - lo], [hi - d]], fmt="D", color=c, ms=7, capsize=4, lw=2)
-            ax.annotate(f"{t['option_effect']} (p = {t['auc_vs_base_p']:.2f})", (1.0, yi),
-                        xycoords=("axes fraction", "data"), xytext=(4, 0), textcoords="offset points",
-                        va="center", fontsize=8, color=c)
+            ax.annotate(
+                f"{t['option_effect']} (p = {t['auc_vs_base_p']:.2f})",
+                (1.0, yi),
+                xycoords=("axes fraction", "data"),
+                xytext=(4, 0),
+                textcoords="offset points",
+                va="center",
+                fontsize=8,
+                color=c,
+            )
         ax.axvline(0, color="k", lw=1)
         ax.set_yticks(y, [f"{t['variant']} vs {t['option_base']}\n{t['option']}" for t in ts], fontsize=8)
         ax.set_ylim(-0.7, len(ts) - 0.3)
         ax.grid(axis="x", alpha=0.3)
         ax.set_title(f"{game}: AUC of the arm minus AUC of the arm without its option (score units)", fontsize=10)
         drawn[game] = [t["variant"] for t in ts]
-    fig.text(0.01, 0.003, "Diamond: difference of the mean AUCs over seeds, with its bootstrap 95 % interval; "
-             "an effect is stated where the interval excludes 0 (3 seeds each; p >= 0.1 with 3 against 3).",
-             fontsize=8, va="bottom")
+    fig.text(
+        0.01,
+        0.003,
+        "Diamond: difference of the mean AUCs over seeds, with its bootstrap 95 % interval; "
+        "an effect is stated where the interval excludes 0 (3 seeds each; p >= 0.1 with 3 against 3).",
+        fontsize=8,
+        va="bottom",
+    )
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     fig.subplots_adjust(right=0.78)
     fig.savefig(path, dpi=100)

@@ -4,15 +4,17 @@ figure, table and README per comparison.
 
 ``recipes/compare.py`` is the command line; tests call :func:`run_gym_compare`.
 """
+
 from __future__ import annotations
 
 import csv
 import json
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -23,8 +25,14 @@ from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
 
-__all__ = ["GymCompareConfig", "GYM_ARMS", "run_gym_compare", "analyse_gym_compare", "random_policy_return",
-           "reach_threshold"]
+__all__ = [
+    "GymCompareConfig",
+    "GYM_ARMS",
+    "run_gym_compare",
+    "analyse_gym_compare",
+    "random_policy_return",
+    "reach_threshold",
+]
 
 #: named arms of the gymnasium comparison: a variant with settings over the comparison's base, each
 #: measured against the arm it changes (``base``). User arms go beside them (``+compare.arms``).
@@ -35,8 +43,12 @@ GYM_ARMS: dict[str, dict] = {
     "hybrid_true_ppo": {"variant": "hybrid_true", "base": "ppo", "rl": "ppo"},
     # prior-corrected labels on the PPO base (PPO's epochs x minibatches already give BC and the
     # inverse model 16 updates per collected batch, so no extra updates)
-    "hybrid_dual_prior_ppo": {"variant": "hybrid_dual", "base": "hybrid_dual_ppo", "rl": "ppo",
-                              "loss": {"bc_prior_floor": 0.05}},
+    "hybrid_dual_prior_ppo": {
+        "variant": "hybrid_dual",
+        "base": "hybrid_dual_ppo",
+        "rl": "ppo",
+        "loss": {"bc_prior_floor": 0.05},
+    },
     # the objective's balance (issue 32): the BC gradient clipped apart from the RL gradient
     "hybrid_dual_clip_apart": {"variant": "hybrid_dual", "base": "hybrid_dual", "optim": {"clip": "per_term"}},
     "hybrid_true_clip_apart": {"variant": "hybrid_true", "base": "hybrid_true", "optim": {"clip": "per_term"}},
@@ -53,10 +65,16 @@ GYM_ARMS: dict[str, dict] = {
     "hybrid_dual_explore": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"explore_envs": 4}},
     # both fixes at once: prior-corrected labels, or labels from explorer slots, and 4 more BC and
     # inverse-model updates per batch
-    "hybrid_dual_prior_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual_utd4",
-                               "loss": {"bc_prior_floor": 0.05, "bc_updates": 4, "idm_updates": 4}},
-    "hybrid_dual_explore_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual_utd4",
-                                 "loss": {"explore_envs": 4, "bc_updates": 4, "idm_updates": 4}},
+    "hybrid_dual_prior_utd4": {
+        "variant": "hybrid_dual",
+        "base": "hybrid_dual_utd4",
+        "loss": {"bc_prior_floor": 0.05, "bc_updates": 4, "idm_updates": 4},
+    },
+    "hybrid_dual_explore_utd4": {
+        "variant": "hybrid_dual",
+        "base": "hybrid_dual_utd4",
+        "loss": {"explore_envs": 4, "bc_updates": 4, "idm_updates": 4},
+    },
 }
 
 
@@ -74,9 +92,9 @@ class GymCompareConfig:
     seeds: Sequence[int] = (0, 1, 2)
     out_dir: str = "results/compare"
     workers: int = 2
-    launcher: str = "local"     # local (worker processes) | ray (Ray tasks; see torchrl_hybrid/utils/launch.py)
+    launcher: str = "local"  # local (worker processes) | ray (Ray tasks; see torchrl_hybrid/utils/launch.py)
     address: str | None = None  # ray: the cluster to join; None starts a local one
-    max_retries: int = 2        # ray: how often a run whose worker died is started again
+    max_retries: int = 2  # ray: how often a run whose worker died is started again
     command: str = ""  # the command line that made this comparison, for the README
     # runs of out_dir made with other settings than asked now are refused (naming each difference);
     # overwrite=true runs them again with the new settings
@@ -95,7 +113,7 @@ class GymCompareConfig:
             return {"variant": name}
         return {k: v for k, v in spec.items() if k != "base"}
 
-    def validate(self) -> "GymCompareConfig":
+    def validate(self) -> GymCompareConfig:
         from torchrl_hybrid.experiments.arms import check_arms
         from torchrl_hybrid.trainers.hybrid import VARIANTS
 
@@ -109,9 +127,9 @@ class GymCompareConfig:
         return self
 
 
-
-def random_policy_return(env_id: str, kwargs: dict | None = None, max_steps: int = 500, episodes: int = 100,
-                         seed: int = 0) -> float:
+def random_policy_return(
+    env_id: str, kwargs: dict | None = None, max_steps: int = 500, episodes: int = 100, seed: int = 0
+) -> float:
     """Mean undiscounted return of the uniformly random policy over ``episodes`` episodes,
     each cut at ``max_steps`` (the floor that "X % of the expert" is measured from)."""
     import gymnasium as gym
@@ -163,8 +181,9 @@ def run_one(d: dict) -> tuple[str, float]:
 
 def _looks_like_compare(folder: Path) -> bool:
     """A comparison folder written before ``study.json``: run folders ``<arm>_s<seed>``."""
-    return any(p.is_dir() and p.name.rpartition("_s")[2].isdigit() and (p / "config.json").exists()
-               for p in folder.iterdir())
+    return any(
+        p.is_dir() and p.name.rpartition("_s")[2].isdigit() and (p / "config.json").exists() for p in folder.iterdir()
+    )
 
 
 def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
@@ -183,23 +202,38 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
     for variant in cfg.variants:
         for seed in cfg.seeds:
             out = Path(cfg.out_dir) / f"{variant}_s{seed}"
-            d = merge_dicts(merge_dicts(cfg.base, cfg.run_settings(variant)),
-                            {"seed": seed, "out_dir": str(out), "logger": {"progress_bar": bar}})
+            d = merge_dicts(
+                merge_dicts(cfg.base, cfg.run_settings(variant)),
+                {"seed": seed, "out_dir": str(out), "logger": {"progress_bar": bar}},
+            )
             planned.append(planned_run(f"{variant}_s{seed}", out, d, config_from_dict))
     with open_study(cfg.out_dir, "gym_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
         if cfg.analyse_only:
             todo = [name for name, out, _, _ in planned if not (out / "summary.json").exists()]
-            print(f"analyse_only: {len(todo)} run(s) not finished, left out" + (f": {', '.join(todo)}" if todo else ""),
-                  flush=True)
+            print(
+                f"analyse_only: {len(todo)} run(s) not finished, left out" + (f": {', '.join(todo)}" if todo else ""),
+                flush=True,
+            )
             return analyse_gym_compare(cfg)
-        named, changed = runs_to_do(planned, cfg.out_dir, _RESUME_KEYS + STUDY_KEYS, ignore=("logger.progress_bar",),
-                                    defaults=dataclasses.asdict(TaxiConfig()), overwrite=cfg.overwrite)
+        named, changed = runs_to_do(
+            planned,
+            cfg.out_dir,
+            _RESUME_KEYS + STUDY_KEYS,
+            ignore=("logger.progress_bar",),
+            defaults=dataclasses.asdict(TaxiConfig()),
+            overwrite=cfg.overwrite,
+        )
         jobs = [d for _, d in named]
-        print(f"{len(jobs)} run(s) to do in {cfg.out_dir}" + (" on Ray" if cfg.launcher == "ray" else "")
-              + (f" ({len(changed)} again with the new settings)" if changed else ""), flush=True)
+        print(
+            f"{len(jobs)} run(s) to do in {cfg.out_dir}"
+            + (" on Ray" if cfg.launcher == "ray" else "")
+            + (f" ({len(changed)} again with the new settings)" if changed else ""),
+            flush=True,
+        )
         t0 = time.perf_counter()
-        for out, secs in run_jobs(run_fn, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address,
-                                  max_retries=cfg.max_retries):
+        for out, secs in run_jobs(
+            run_fn, jobs, launcher=cfg.launcher, workers=cfg.workers, address=cfg.address, max_retries=cfg.max_retries
+        ):
             print(f"  {out}: {secs:.0f} s ({time.perf_counter() - t0:.0f} s since start)", flush=True)
         return analyse_gym_compare(cfg, wall_time_s=time.perf_counter() - t0 if jobs else None)
 
@@ -212,10 +246,12 @@ def _load(cfg: GymCompareConfig) -> dict[str, list[dict]]:
             if not (d / "summary.json").exists():
                 continue
             with open(d / "metrics.csv") as f:
-                rows = [{k: float(v) if v not in ("", None) else math.nan for k, v in r.items()}
-                        for r in csv.DictReader(f)]
+                rows = [
+                    {k: float(v) if v not in ("", None) else math.nan for k, v in r.items()} for r in csv.DictReader(f)
+                ]
             runs.setdefault(variant, []).append(
-                {"seed": seed, "rows": rows, "summary": read_json(d / "summary.json", "run summary")})
+                {"seed": seed, "rows": rows, "summary": read_json(d / "summary.json", "run summary")}
+            )
     return runs
 
 
@@ -241,8 +277,9 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
     if not runs:
         raise ValueError(f"no finished runs in {cfg.out_dir}")
     out = Path(cfg.out_dir)
-    optimal = [r["summary"]["optimal_return"] for rs in runs.values() for r in rs
-               if r["summary"]["optimal_return"] is not None]
+    optimal = [
+        r["summary"]["optimal_return"] for rs in runs.values() for r in rs if r["summary"]["optimal_return"] is not None
+    ]
     optimal = float(np.mean(optimal)) if optimal else None
     env_cfg = {**{"env_id": "Taxi-v4", "kwargs": {}, "max_episode_steps": 50}, **cfg.base.get("env", {})}
     random_return = random_policy_return(env_cfg["env_id"], env_cfg["kwargs"], env_cfg["max_episode_steps"])
@@ -256,11 +293,20 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
         for variant, rs in runs.items():
             for r in rs:
                 for row in r["rows"]:
-                    w.writerow([variant, r["seed"], int(row["frames"]), row.get("eval_return", math.nan),
-                                row.get("return_mean", math.nan), row.get(IDM_ACCURACY_EXPERT, ""),
-                                row.get("entropy", "")])
-    has_acc = any(not math.isnan(row.get(IDM_ACCURACY_EXPERT, math.nan)) for rs in runs.values() for r in rs
-                  for row in r["rows"])
+                    w.writerow(
+                        [
+                            variant,
+                            r["seed"],
+                            int(row["frames"]),
+                            row.get("eval_return", math.nan),
+                            row.get("return_mean", math.nan),
+                            row.get(IDM_ACCURACY_EXPERT, ""),
+                            row.get("entropy", ""),
+                        ]
+                    )
+    has_acc = any(
+        not math.isnan(row.get(IDM_ACCURACY_EXPERT, math.nan)) for rs in runs.values() for r in rs for row in r["rows"]
+    )
     fig, axes = plt.subplots(1, 2 if has_acc else 1, figsize=(12 if has_acc else 6.5, 4.2), squeeze=False)
     for ci, (variant, rs) in enumerate(runs.items()):
         n = min(len(r["rows"]) for r in rs)
@@ -275,20 +321,27 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
             vals = [row[key] for row in r["rows"] if not math.isnan(row.get(key, math.nan))]
             return vals[-1] if vals else math.nan
 
-        stats[variant] = {"seeds": [r["seed"] for r in rs], "auc": ev.mean(1),
-                          "final": np.array([r["summary"]["final_return"] for r in rs]), "reach": np.array(reach),
-                          "budget": float(frames[-1]),
-                          "idm_acc": np.array([last(r, IDM_ACCURACY_EXPERT) for r in rs]),
-                          "entropy": np.array([last(r, "entropy") for r in rs]),
-                          "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs]))}
+        stats[variant] = {
+            "seeds": [r["seed"] for r in rs],
+            "auc": ev.mean(1),
+            "final": np.array([r["summary"]["final_return"] for r in rs]),
+            "reach": np.array(reach),
+            "budget": float(frames[-1]),
+            "idm_acc": np.array([last(r, IDM_ACCURACY_EXPERT) for r in rs]),
+            "entropy": np.array([last(r, "entropy") for r in rs]),
+            "frames_per_s": float(np.mean([r["summary"]["frames_per_s"] for r in rs])),
+        }
         ax = axes[0, 0]
         for c in ev:
             ax.plot(frames, c, color=f"C{ci}", lw=0.7, alpha=0.35)
         ax.plot(frames, ev.mean(0), color=f"C{ci}", lw=2, label=f"{variant} ({len(rs)} seeds)")
         if has_acc:
             for k, r in enumerate(rs):
-                pts = [(row["frames"], row[IDM_ACCURACY_EXPERT]) for row in r["rows"]
-                       if not math.isnan(row.get(IDM_ACCURACY_EXPERT, math.nan))]
+                pts = [
+                    (row["frames"], row[IDM_ACCURACY_EXPERT])
+                    for row in r["rows"]
+                    if not math.isnan(row.get(IDM_ACCURACY_EXPERT, math.nan))
+                ]
                 if pts:
                     axes[0, 1].plot(*zip(*pts), color=f"C{ci}", lw=1, label=variant if k == 0 else None)
     env_name = cfg.base.get("env", {}).get("env_id", "Taxi-v4")
@@ -300,8 +353,12 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     if has_acc:
-        axes[0, 1].set(xlabel="frames", ylabel="inferred = true expert action", ylim=(0, 1.03),
-                       title="inverse-model accuracy on the demo pairs")
+        axes[0, 1].set(
+            xlabel="frames",
+            ylabel="inferred = true expert action",
+            ylim=(0, 1.03),
+            title="inverse-model accuracy on the demo pairs",
+        )
         axes[0, 1].grid(alpha=0.3)
         axes[0, 1].legend(loc="lower right", fontsize=8)
     fig.tight_layout()
@@ -314,66 +371,103 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
     for variant, s in stats.items():
         # frames to the threshold, a seed that never reached it counted as the whole budget (a lower bound)
         censored = np.where(np.isfinite(s["reach"]), s["reach"], s["budget"])
-        row = {"variant": variant, "seeds": len(s["seeds"]), "auc": _ci_text(s["auc"]),
-               "final": _ci_text(s["final"]),
-               "reached": f"{int(np.isfinite(s['reach']).sum())}/{len(s['reach'])}",
-               "frames_to_reach": _ci_text(censored, digits=0) if threshold is not None else "",
-               "idm_accuracy_expert_end": "" if np.isnan(s["idm_acc"]).all() else f"{np.nanmean(s['idm_acc']):.2f}",
-               "entropy_end": "" if np.isnan(s["entropy"]).all() else f"{np.nanmean(s['entropy']):.2f}",
-               "auc_per_seed": [round(float(x), 2) for x in s["auc"]],
-               "final_per_seed": [round(float(x), 2) for x in s["final"]],
-               "frames_per_s": round(s["frames_per_s"], 1)}
+        row = {
+            "variant": variant,
+            "seeds": len(s["seeds"]),
+            "auc": _ci_text(s["auc"]),
+            "final": _ci_text(s["final"]),
+            "reached": f"{int(np.isfinite(s['reach']).sum())}/{len(s['reach'])}",
+            "frames_to_reach": _ci_text(censored, digits=0) if threshold is not None else "",
+            "idm_accuracy_expert_end": "" if np.isnan(s["idm_acc"]).all() else f"{np.nanmean(s['idm_acc']):.2f}",
+            "entropy_end": "" if np.isnan(s["entropy"]).all() else f"{np.nanmean(s['entropy']):.2f}",
+            "auc_per_seed": [round(float(x), 2) for x in s["auc"]],
+            "final_per_seed": [round(float(x), 2) for x in s["final"]],
+            "frames_per_s": round(s["frames_per_s"], 1),
+        }
         if variant != ref and min(len(s["auc"]), len(stats[ref]["auc"])) >= 2:
             d, lo, hi = mean_diff_ci(s["auc"], stats[ref]["auc"])
-            row[f"auc_minus_{ref}"] = f"{d:+.2f} [{lo:+.2f}, {hi:+.2f}], p = {permutation_p(s['auc'], stats[ref]['auc']):.3f}"
+            row[f"auc_minus_{ref}"] = (
+                f"{d:+.2f} [{lo:+.2f}, {hi:+.2f}], p = {permutation_p(s['auc'], stats[ref]['auc']):.3f}"
+            )
         base = cfg.all_arms.get(variant, {}).get("base")
         if base in stats and min(len(s["auc"]), len(stats[base]["auc"])) >= 2:
             d, lo, hi = mean_diff_ci(s["auc"], stats[base]["auc"])
-            row["option_effect"] = (f"auc − {base}: {d:+.2f} [{lo:+.2f}, {hi:+.2f}], "
-                                    f"p = {permutation_p(s['auc'], stats[base]['auc']):.3f}")
+            row["option_effect"] = (
+                f"auc − {base}: {d:+.2f} [{lo:+.2f}, {hi:+.2f}], p = {permutation_p(s['auc'], stats[base]['auc']):.3f}"
+            )
         table.append(row)
-    raw = {"env_id": env_name,
-           "expert_return": optimal, "random_return": random_return, "threshold": threshold, "reach_share": REACH,
-           "reference": ref,
-           "arms": {v: {"variant": cfg.run_settings(v)["variant"], "base": cfg.all_arms.get(v, {}).get("base"),
-                        "rl": cfg.run_settings(v).get("rl", cfg.base.get("rl", "a2c")),
-                        "seeds": st["seeds"], "auc": st["auc"].tolist(), "final": st["final"].tolist(),
-                        "frames_to_reach": [None if not np.isfinite(x) else float(x) for x in st["reach"]],
-                        "budget": st["budget"],
-                        "idm_accuracy_expert_end": [None if np.isnan(x) else float(x) for x in st["idm_acc"]],
-                        "entropy_end": [None if np.isnan(x) else float(x) for x in st["entropy"]]}
-                    for v, st in stats.items()}}
+    raw = {
+        "env_id": env_name,
+        "expert_return": optimal,
+        "random_return": random_return,
+        "threshold": threshold,
+        "reach_share": REACH,
+        "reference": ref,
+        "arms": {
+            v: {
+                "variant": cfg.run_settings(v)["variant"],
+                "base": cfg.all_arms.get(v, {}).get("base"),
+                "rl": cfg.run_settings(v).get("rl", cfg.base.get("rl", "a2c")),
+                "seeds": st["seeds"],
+                "auc": st["auc"].tolist(),
+                "final": st["final"].tolist(),
+                "frames_to_reach": [None if not np.isfinite(x) else float(x) for x in st["reach"]],
+                "budget": st["budget"],
+                "idm_accuracy_expert_end": [None if np.isnan(x) else float(x) for x in st["idm_acc"]],
+                "entropy_end": [None if np.isnan(x) else float(x) for x in st["entropy"]],
+            }
+            for v, st in stats.items()
+        },
+    }
     (out / "summary.json").write_text(json.dumps(raw, indent=2))
     with open(out / "summary.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=sorted({k for t in table for k in t}, key=lambda k: list(table[0]).index(k)
-                                                if k in table[0] else 99))
+        w = csv.DictWriter(
+            f,
+            fieldnames=sorted(
+                {k for t in table for k in t}, key=lambda k: list(table[0]).index(k) if k in table[0] else 99
+            ),
+        )
         w.writeheader()
         w.writerows(table)
     lines = [f"# {env_name}: {' vs '.join(stats)}", ""]
     if cfg.command:
-        lines += [f"Rerun: `{cfg.command}`" + (f" ({wall_time_s / 60:.1f} min on the 2-core CPU machine)"
-                                               if wall_time_s else ""), ""]
-    lines += ["Greedy return of the policy (mode of its distribution) on fresh episodes at every logged point; "
-              "`auc` is its mean over the logged points, `final` the greedy return at the end of the run, "
-              f"`reached` the seeds whose greedy return reached {pct} of the way from the random policy's return "
-              f"({random_return:.2f}) to the expert's"
-              + (f" ({optimal:.2f}): {threshold:.2f}" if optimal is not None else " (no expert return: none was given)")
-              + f"; `frames to {pct}` their mean, a seed that never reached it counted as the whole budget "
-              "(so a lower bound). `IDM acc.` is the inverse model's accuracy on the expert pairs at the end (where "
-              "the demos keep the true actions), `entropy` the policy's at the end (a collapse shows as ~0). "
-              "Intervals: bootstrap 95 % over seeds (3 or more seeds); differences against "
-              f"`{ref}`, and each named arm against the arm it changes, with a permutation-test p-value.", "",
-              f"| arm | seeds | auc | final | reached | frames to {pct} | IDM acc. | entropy | auc − {ref} | option |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+        lines += [
+            f"Rerun: `{cfg.command}`"
+            + (f" ({wall_time_s / 60:.1f} min on the 2-core CPU machine)" if wall_time_s else ""),
+            "",
+        ]
+    lines += [
+        "Greedy return of the policy (mode of its distribution) on fresh episodes at every logged point; "
+        "`auc` is its mean over the logged points, `final` the greedy return at the end of the run, "
+        f"`reached` the seeds whose greedy return reached {pct} of the way from the random policy's return "
+        f"({random_return:.2f}) to the expert's"
+        + (f" ({optimal:.2f}): {threshold:.2f}" if optimal is not None else " (no expert return: none was given)")
+        + f"; `frames to {pct}` their mean, a seed that never reached it counted as the whole budget "
+        "(so a lower bound). `IDM acc.` is the inverse model's accuracy on the expert pairs at the end (where "
+        "the demos keep the true actions), `entropy` the policy's at the end (a collapse shows as ~0). "
+        "Intervals: bootstrap 95 % over seeds (3 or more seeds); differences against "
+        f"`{ref}`, and each named arm against the arm it changes, with a permutation-test p-value.",
+        "",
+        f"| arm | seeds | auc | final | reached | frames to {pct} | IDM acc. | entropy | auc − {ref} | option |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for t in table:
-        lines.append(f"| {t['variant']} | {t['seeds']} | {t['auc']} | {t['final']} | {t['reached']} | "
-                     f"{t['frames_to_reach'] or '-'} | {t['idm_accuracy_expert_end'] or '-'} | {t['entropy_end'] or '-'} | "
-                     f"{t.get(f'auc_minus_{ref}', '-')} | {t.get('option_effect', '-')} |")
-    lines += ["", "![comparison](comparison.png)", "",
-              "Files: `curves.csv` (every logged point of every run), `summary.csv`, and each run's folder "
-              "(`metrics.csv`, `summary.json`, `config.json`, `learning_curve.png`)."]
+        lines.append(
+            f"| {t['variant']} | {t['seeds']} | {t['auc']} | {t['final']} | {t['reached']} | "
+            f"{t['frames_to_reach'] or '-'} | {t['idm_accuracy_expert_end'] or '-'} | {t['entropy_end'] or '-'} | "
+            f"{t.get(f'auc_minus_{ref}', '-')} | {t.get('option_effect', '-')} |"
+        )
+    lines += [
+        "",
+        "![comparison](comparison.png)",
+        "",
+        "Files: `curves.csv` (every logged point of every run), `summary.csv`, and each run's folder "
+        "(`metrics.csv`, `summary.json`, `config.json`, `learning_curve.png`).",
+    ]
     (out / "README.md").write_text("\n".join(lines) + "\n")
     for t in table:
-        print(f"{t['variant']:12s} seeds {t['seeds']}  auc {t['auc']}  final {t['final']}  reached {pct} "
-              f"{t['reached']}  {t.get(f'auc_minus_{ref}', '')}")
+        print(
+            f"{t['variant']:12s} seeds {t['seeds']}  auc {t['auc']}  final {t['final']}  reached {pct} "
+            f"{t['reached']}  {t.get(f'auc_minus_{ref}', '')}"
+        )
     return {"table": table, "optimal": optimal, "random_return": random_return, "threshold": threshold}

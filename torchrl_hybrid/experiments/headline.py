@@ -15,6 +15,7 @@ The issue's goals, per env, for the best arm with inferred labels:
 Where a goal is missed, the decomposition says which part is at fault: the oracle against the
 RL base is the objective's, the best inferred arm against the oracle is the labels'.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -64,13 +65,24 @@ def headline_rows(studies: dict[str, str | Path], oracle: str = "hybrid_true") -
         all_arms = summary["arms"]
         bases = [rl for rl, (name, _) in BASES.items() if name in all_arms]
         if not bases:
-            raise ValueError(f"{out_dir}: no RL-base runs ({' or '.join(n for n, _ in BASES.values())}) to compare "
-                             "against")
+            raise ValueError(
+                f"{out_dir}: no RL-base runs ({' or '.join(n for n, _ in BASES.values())}) to compare against"
+            )
         for rl in bases:
             base, paper = BASES[rl]
             arms = {k: a for k, a in all_arms.items() if _rl(k, a) == rl}
-            rows.append(_row(f"{label}" if len(bases) == 1 else f"{label}, {rl.upper()}", out_dir, summary, arms,
-                             base, paper, oracle, rl))
+            rows.append(
+                _row(
+                    f"{label}" if len(bases) == 1 else f"{label}, {rl.upper()}",
+                    out_dir,
+                    summary,
+                    arms,
+                    base,
+                    paper,
+                    oracle,
+                    rl,
+                )
+            )
     return rows
 
 
@@ -78,15 +90,23 @@ def _row(label: str, out_dir, summary: dict, arms: dict, base: str, paper: str, 
     b = arms[base]
     inferred = {k: a for k, a in arms.items() if a["variant"] in ("hybrid_dual", "hybrid_mlp")}
     best_name = max(inferred, key=lambda k: np.mean(inferred[k]["auc"])) if inferred else None
-    row: dict[str, Any] = {"env": label, "rl": rl, "out_dir": str(out_dir), "expert": summary["expert_return"],
-                           "base_arm": base, "base": _ci(b["auc"]), "base_reached": f"{_reached(b)}/{len(b['auc'])}",
-                           "base_frames": float(_frames(b).mean())}
+    row: dict[str, Any] = {
+        "env": label,
+        "rl": rl,
+        "out_dir": str(out_dir),
+        "expert": summary["expert_return"],
+        "base_arm": base,
+        "base": _ci(b["auc"]),
+        "base_reached": f"{_reached(b)}/{len(b['auc'])}",
+        "base_frames": float(_frames(b).mean()),
+    }
     # the oracle to hold the best arm against: its counterpart with true labels and the same settings
     # (hybrid_dual_X -> hybrid_true_X), else the strongest oracle arm run (the harder bar)
     oracles = {k: a for k, a in arms.items() if a["variant"] == oracle}
     twin = best_name.replace("hybrid_dual", oracle, 1) if best_name else None
-    oracle_name = twin if twin in oracles else (max(oracles, key=lambda k: np.mean(oracles[k]["auc"]))
-                                                if oracles else oracle)
+    oracle_name = (
+        twin if twin in oracles else (max(oracles, key=lambda k: np.mean(oracles[k]["auc"])) if oracles else oracle)
+    )
     for key, name in (("paper", paper), ("best", best_name), ("oracle", oracle_name)):
         a = arms.get(name)
         if a is None:
@@ -94,9 +114,15 @@ def _row(label: str, out_dir, summary: dict, arms: dict, base: str, paper: str, 
             continue
         d, lo, hi = mean_diff_ci(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else (np.nan,) * 3
         p = permutation_p(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else np.nan
-        row[key] = {"arm": name, "auc": _ci(a["auc"]), "diff": f"{d:+.1f} [{lo:+.1f}, {hi:+.1f}], p = {p:.2f}",
-                    "reached": f"{_reached(a)}/{len(a['auc'])}", "frames": float(_frames(a).mean()),
-                    "auc_mean": float(np.mean(a["auc"])), "auc_values": a["auc"]}
+        row[key] = {
+            "arm": name,
+            "auc": _ci(a["auc"]),
+            "diff": f"{d:+.1f} [{lo:+.1f}, {hi:+.1f}], p = {p:.2f}",
+            "reached": f"{_reached(a)}/{len(a['auc'])}",
+            "frames": float(_frames(a).mean()),
+            "auc_mean": float(np.mean(a["auc"])),
+            "auc_values": a["auc"],
+        }
     best, orc = row["best"], row["oracle"]
     if best is not None:
         never = _reached(b) == 0 and _reached(arms[best_name]) == len(arms[best_name]["auc"])
@@ -110,9 +136,11 @@ def _row(label: str, out_dir, summary: dict, arms: dict, base: str, paper: str, 
 
 
 def headline_markdown(rows: list[dict[str, Any]]) -> str:
-    lines = ["| env | RL base: AUC | paper's hybrid AUC (− base) | best inferred-label arm: AUC (− base) | "
-             "its oracle: AUC | frames to 90 %: base / best | faster? | labels as good as true? |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| env | RL base: AUC | paper's hybrid AUC (− base) | best inferred-label arm: AUC (− base) | "
+        "its oracle: AUC | frames to 90 %: base / best | faster? | labels as good as true? |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
 
     def cell(x, full=True):
         if x is None:
@@ -121,13 +149,18 @@ def headline_markdown(rows: list[dict[str, Any]]) -> str:
 
     for r in rows:
         best = r["best"]
-        frames = (f"{r['base_frames'] / 1e3:.0f}k ({r['base_reached']}) / {best['frames'] / 1e3:.0f}k "
-                  f"({best['reached']})" if best else "-")
+        frames = (
+            f"{r['base_frames'] / 1e3:.0f}k ({r['base_reached']}) / {best['frames'] / 1e3:.0f}k ({best['reached']})"
+            if best
+            else "-"
+        )
         yes = {True: "**yes**", False: "no", None: "-"}
-        lines.append(f"| [{r['env']}]({r['out_dir']}/README.md) | `{r['base_arm']}`: {r['base']} | {cell(r['paper'])} | "
-                     f"{'`' + best['arm'] + '`: ' + cell(best) if best else '-'} | "
-                     f"{'`' + r['oracle']['arm'] + '`: ' + r['oracle']['auc'] if r['oracle'] else 'not run'} | "
-                     f"{frames} | {yes[r.get('faster')]} | {yes[r.get('as_good_as_true')]} |")
+        lines.append(
+            f"| [{r['env']}]({r['out_dir']}/README.md) | `{r['base_arm']}`: {r['base']} | {cell(r['paper'])} | "
+            f"{'`' + best['arm'] + '`: ' + cell(best) if best else '-'} | "
+            f"{'`' + r['oracle']['arm'] + '`: ' + r['oracle']['auc'] if r['oracle'] else 'not run'} | "
+            f"{frames} | {yes[r.get('faster')]} | {yes[r.get('as_good_as_true')]} |"
+        )
     return "\n".join(lines)
 
 

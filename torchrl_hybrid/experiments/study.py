@@ -10,17 +10,27 @@ as a run is one (:func:`torchrl_hybrid.utils.files.prepare_out_dir`):
 
 ``gym_compare``, ``atari_compare`` and ``taxi_sweep`` all go through these.
 """
+
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 from torchrl_hybrid.utils.config import flatten_dict
 from torchrl_hybrid.utils.files import read_json, take_lock
 
-__all__ = ["STUDY_FILE", "Study", "open_study", "settings_diff", "changed_runs", "refuse_changed", "planned_run",
-           "runs_to_do"]
+__all__ = [
+    "STUDY_FILE",
+    "Study",
+    "open_study",
+    "settings_diff",
+    "changed_runs",
+    "refuse_changed",
+    "planned_run",
+    "runs_to_do",
+]
 
 #: what a study writes at the top of its folder: its kind (and nothing a run needs)
 STUDY_FILE = "study.json"
@@ -39,15 +49,14 @@ class Study:
             self._lock.close()
             self._lock = None
 
-    def __enter__(self) -> "Study":
+    def __enter__(self) -> Study:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
 
 
-def open_study(out_dir: str | Path, kind: str, *, looks_like: Callable[[Path], bool],
-               overwrite: bool = False) -> Study:
+def open_study(out_dir: str | Path, kind: str, *, looks_like: Callable[[Path], bool], overwrite: bool = False) -> Study:
     """Takes ``out_dir`` for a study of ``kind`` (e.g. ``"gym_compare"``).
 
     - a file there, or a study of another kind (its ``study.json``), is refused;
@@ -64,13 +73,16 @@ def open_study(out_dir: str | Path, kind: str, *, looks_like: Callable[[Path], b
         saved = read_json(record, "study record")
         found = saved.get("kind") if isinstance(saved, dict) else None
         if found != kind:
-            raise ValueError(f"out_dir {out} holds a {found!r} study ({record}), not a {kind!r} one; "
-                             "choose another out_dir")
+            raise ValueError(
+                f"out_dir {out} holds a {found!r} study ({record}), not a {kind!r} one; choose another out_dir"
+            )
     elif out.exists() and any(p.name != _LOCK for p in out.iterdir()) and not looks_like(out) and not overwrite:
         shown = sorted(p.name for p in out.iterdir())[:5]
-        raise ValueError(f"out_dir {out} holds files that are not a {kind} study ({', '.join(shown)}, ...); "
-                         "choose an empty or new out_dir, or pass overwrite=true to write the study's files "
-                         "there beside them")
+        raise ValueError(
+            f"out_dir {out} holds files that are not a {kind} study ({', '.join(shown)}, ...); "
+            "choose an empty or new out_dir, or pass overwrite=true to write the study's files "
+            "there beside them"
+        )
     out.mkdir(parents=True, exist_ok=True)
     lock = take_lock(out / _LOCK, "another study")
     if not record.exists():
@@ -80,8 +92,9 @@ def open_study(out_dir: str | Path, kind: str, *, looks_like: Callable[[Path], b
     return Study(out, kind, lock)
 
 
-def settings_diff(saved: dict, now: dict, keys: Iterable[str], *, ignore: Iterable[str] = (),
-                  defaults: dict | None = None) -> list[str]:
+def settings_diff(
+    saved: dict, now: dict, keys: Iterable[str], *, ignore: Iterable[str] = (), defaults: dict | None = None
+) -> list[str]:
     """The settings under ``keys`` (top-level names, or dotted names of single settings)
     on which two full run configs differ, as ``"name: saved -> now"``. A setting ``saved``
     lacks (the project added it after that run) counts as its value in ``defaults``."""
@@ -89,8 +102,7 @@ def settings_diff(saved: dict, now: dict, keys: Iterable[str], *, ignore: Iterab
 
     def pick(d: dict) -> dict[str, Any]:
         flat = flatten_dict(d)
-        return {k: v for k, v in flat.items()
-                if any(k == p or k.startswith(p + ".") for p in keys) and k not in ignore}
+        return {k: v for k, v in flat.items() if any(k == p or k.startswith(p + ".") for p in keys) and k not in ignore}
 
     old, new = pick(saved), pick(now)
     for k, v in pick(defaults or {}).items():
@@ -98,8 +110,13 @@ def settings_diff(saved: dict, now: dict, keys: Iterable[str], *, ignore: Iterab
     return [f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
 
 
-def changed_runs(runs: Iterable[tuple[str, Path, dict]], keys: Iterable[str], *, ignore: Iterable[str] = (),
-                 defaults: dict | None = None) -> dict[str, list[str]]:
+def changed_runs(
+    runs: Iterable[tuple[str, Path, dict]],
+    keys: Iterable[str],
+    *,
+    ignore: Iterable[str] = (),
+    defaults: dict | None = None,
+) -> dict[str, list[str]]:
     """``{name: differences}`` for each run of the folder, finished or started (it has a
     ``config.json``), whose settings differ from the full config asked for now: a finished
     one would be reported as the run asked for, a started one resumed. ``runs`` gives
@@ -126,9 +143,11 @@ def refuse_changed(changed: dict[str, list[str]], out_dir: str | Path, overwrite
     first = list(changed.items())[:3]
     shown = "; ".join(f"{name}: {', '.join(d[:4])}" + (" ..." if len(d) > 4 else "") for name, d in first)
     more = f" (and {len(changed) - len(first)} more)" if len(changed) > len(first) else ""
-    raise ValueError(f"{len(changed)} run(s) in {out_dir} were made with other settings than asked now "
-                     f"({shown}{more}); choose another out_dir, run with the same settings, or pass "
-                     f"{overwrite_hint} to run them again with the new ones")
+    raise ValueError(
+        f"{len(changed)} run(s) in {out_dir} were made with other settings than asked now "
+        f"({shown}{more}); choose another out_dir, run with the same settings, or pass "
+        f"{overwrite_hint} to run them again with the new ones"
+    )
 
 
 def planned_run(name: str, out: Path, d: dict, make_config: Callable[[dict], Any]) -> tuple[str, Path, dict, dict]:
@@ -144,9 +163,15 @@ def planned_run(name: str, out: Path, d: dict, make_config: Callable[[dict], Any
     return name, out, d, dataclasses.asdict(full)
 
 
-def runs_to_do(planned: list[tuple[str, Path, dict, dict]], out_dir: str | Path, keys: Iterable[str], *,
-               ignore: Iterable[str] = (), defaults: dict | None = None,
-               overwrite: bool = False) -> tuple[list[tuple[str, dict]], dict[str, list[str]]]:
+def runs_to_do(
+    planned: list[tuple[str, Path, dict, dict]],
+    out_dir: str | Path,
+    keys: Iterable[str],
+    *,
+    ignore: Iterable[str] = (),
+    defaults: dict | None = None,
+    overwrite: bool = False,
+) -> tuple[list[tuple[str, dict]], dict[str, list[str]]]:
     """The runs of ``planned`` (from :func:`planned_run`) to start: those not finished, and
     (with ``overwrite``) those made with other settings, whose job then says ``overwrite``;
     without ``overwrite`` runs of other settings are refused (:func:`refuse_changed`).
@@ -154,6 +179,9 @@ def runs_to_do(planned: list[tuple[str, Path, dict, dict]], out_dir: str | Path,
     changed = changed_runs([(n, out, full) for n, out, _, full in planned], keys, ignore=ignore, defaults=defaults)
     if not overwrite:
         refuse_changed(changed, out_dir)
-    jobs = [(n, {**d, "overwrite": True} if n in changed else d) for n, out, d, _ in planned
-            if n in changed or not (out / "summary.json").exists()]
+    jobs = [
+        (n, {**d, "overwrite": True} if n in changed else d)
+        for n, out, d, _ in planned
+        if n in changed or not (out / "summary.json").exists()
+    ]
     return jobs, changed

@@ -4,6 +4,7 @@ aggregated into curves, figures, a parameter table and a claims table.
 ``recipes/taxi_sweep.py`` is the command line; :func:`run_sweep` and
 :func:`analyse` are the library entry points (the notebook and tests call them).
 """
+
 from __future__ import annotations
 
 import csv
@@ -12,9 +13,10 @@ import math
 import multiprocessing as mp
 import shutil
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -57,9 +59,9 @@ class SweepConfig:
     out_dir: str = field(default_factory=lambda: time.strftime("outputs/taxi_sweep/%Y-%m-%d_%H-%M-%S"))
     workers: int = 2
     base: dict = field(default_factory=dict)
-    launcher: str = "local"     # local (worker processes) | ray (one Ray task per configuration)
+    launcher: str = "local"  # local (worker processes) | ray (one Ray task per configuration)
     address: str | None = None  # ray: the cluster to join; None starts a local one
-    max_retries: int = 2        # ray: how often a configuration whose worker died is started again
+    max_retries: int = 2  # ray: how often a configuration whose worker died is started again
     # a folder holding a sweep with other settings is refused (naming each difference);
     # overwrite=true runs this one there instead
     overwrite: bool = False
@@ -67,8 +69,7 @@ class SweepConfig:
     @property
     def settings(self) -> dict:
         """What makes two sweeps the same sweep (runs.json's ``meta`` holds them)."""
-        return {"groups": list(self.groups), "seeds": self.seeds, "total_frames": self.total_frames,
-                "base": self.base}
+        return {"groups": list(self.groups), "seeds": self.seeds, "total_frames": self.total_frames, "base": self.base}
 
 
 def configurations(groups: Sequence[str]) -> dict[str, dict]:
@@ -81,7 +82,6 @@ def configurations(groups: Sequence[str]) -> dict[str, dict]:
         for name, over in GROUPS[g]:
             out.setdefault(ALIASES.get(name, name), over)
     return out
-
 
 
 class _BarFeed:
@@ -132,8 +132,10 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
     base = merge_dicts({"total_frames": cfg.total_frames, "logger": {"progress_bar": False}}, cfg.base)
     jobs = []
     for name, over in confs.items():
-        dicts = [merge_dicts(merge_dicts(base, over), {"seed": s, "out_dir": f"{cfg.out_dir}/runs/{name}/seed_{s}"})
-                 for s in range(cfg.seeds)]
+        dicts = [
+            merge_dicts(merge_dicts(base, over), {"seed": s, "out_dir": f"{cfg.out_dir}/runs/{name}/seed_{s}"})
+            for s in range(cfg.seeds)
+        ]
         jobs.append((name, dicts))
     # the slowest (dual-model) jobs first so that the two workers finish together
     jobs.sort(key=lambda j: ("dual" not in j[0], j[0]))
@@ -158,8 +160,10 @@ def _run_sweep(cfg: SweepConfig, jobs: list, show_progress: bool) -> dict[str, l
             analyse(out, results, meta)
             return results
         if not cfg.overwrite:
-            raise ValueError(f"{out} holds a finished sweep with other settings ({'; '.join(diff)}; see "
-                             f"{out / 'runs.json'}); choose another out_dir, or pass overwrite=true to replace it")
+            raise ValueError(
+                f"{out} holds a finished sweep with other settings ({'; '.join(diff)}; see "
+                f"{out / 'runs.json'}); choose another out_dir, or pass overwrite=true to replace it"
+            )
     # each finished configuration is kept in out/configs/<name>.json with the settings it ran
     # with, so an interrupted sweep (or one whose worker died) goes on with the missing ones
     done_dir = out / "configs"
@@ -176,10 +180,12 @@ def _run_sweep(cfg: SweepConfig, jobs: list, show_progress: bool) -> dict[str, l
             else:
                 changed.append(name)
     if changed and not cfg.overwrite:
-        raise ValueError(f"{len(changed)} configuration(s) in {done_dir} ran with other settings than asked now "
-                         f"({', '.join(changed[:4])}{' ...' if len(changed) > 4 else ''}); run the same command "
-                         "as that sweep to go on with it, choose another out_dir, or pass overwrite=true to run "
-                         "them again")
+        raise ValueError(
+            f"{len(changed)} configuration(s) in {done_dir} ran with other settings than asked now "
+            f"({', '.join(changed[:4])}{' ...' if len(changed) > 4 else ''}); run the same command "
+            "as that sweep to go on with it, choose another out_dir, or pass overwrite=true to run "
+            "them again"
+        )
     if results:
         print(f"{len(results)} configuration(s) already done in {done_dir}; {len(jobs)} to run", flush=True)
 
@@ -193,11 +199,22 @@ def _run_sweep(cfg: SweepConfig, jobs: list, show_progress: bool) -> dict[str, l
     jobs_by_name = {n: d for n, d in jobs}
     total = sum(len(d) for _, d in jobs) * cfg.total_frames
     t0 = time.perf_counter()
-    with tqdm(total=total, unit="frame", unit_scale=True, disable=not show_progress,
-              desc=f"{len(jobs)} configs x {cfg.seeds} seeds") as bar:
+    with tqdm(
+        total=total,
+        unit="frame",
+        unit_scale=True,
+        disable=not show_progress,
+        desc=f"{len(jobs)} configs x {cfg.seeds} seeds",
+    ) as bar:
         if cfg.launcher == "ray":  # one Ray task per configuration; progress per finished configuration
-            for name, summaries in run_jobs(_run_batch, [(n, d, None) for n, d in jobs], launcher="ray",
-                                            workers=cfg.workers, address=cfg.address, max_retries=cfg.max_retries):
+            for name, summaries in run_jobs(
+                _run_batch,
+                [(n, d, None) for n, d in jobs],
+                launcher="ray",
+                workers=cfg.workers,
+                address=cfg.address,
+                max_retries=cfg.max_retries,
+            ):
                 keep(name, summaries)
                 bar.update(len(summaries) * cfg.total_frames)
                 bar.set_postfix_str(f"last: {name}")
@@ -212,14 +229,23 @@ def _run_sweep(cfg: SweepConfig, jobs: list, show_progress: bool) -> dict[str, l
                 def drain():
                     while not queue.empty():
                         bar.update(queue.get())
-                for name, summaries in run_jobs(_run_batch, [(n, d, queue) for n, d in jobs], workers=cfg.workers,
-                                                poll=drain):
+
+                for name, summaries in run_jobs(
+                    _run_batch, [(n, d, queue) for n, d in jobs], workers=cfg.workers, poll=drain
+                ):
                     keep(name, summaries)
                     bar.set_postfix_str(f"last: {name}")
                 drain()
     wall = time.perf_counter() - t0
-    meta = {"groups": list(cfg.groups), "seeds": cfg.seeds, "total_frames": cfg.total_frames, "out_dir": cfg.out_dir,
-            "workers": cfg.workers, "wall_time_s": round(wall, 1), "base": cfg.base}
+    meta = {
+        "groups": list(cfg.groups),
+        "seeds": cfg.seeds,
+        "total_frames": cfg.total_frames,
+        "out_dir": cfg.out_dir,
+        "workers": cfg.workers,
+        "wall_time_s": round(wall, 1),
+        "base": cfg.base,
+    }
     (out / "runs.json").write_text(json.dumps({"meta": meta, "runs": results}))
     shutil.rmtree(done_dir)  # runs.json holds them all now
     analyse(out, results, meta)
@@ -258,7 +284,11 @@ def _stats(runs: list[dict], optimal: float) -> dict[str, Any]:
     final = np.array([r["final_return"] for r in runs])
     auc = ev.mean(1)  # mean greedy return over the logged points = normalised area under the curve
     out = {
-        "final": final, "auc": auc, "reach": reach, "frames": frames, "eval": ev,
+        "final": final,
+        "auc": auc,
+        "reach": reach,
+        "frames": frames,
+        "eval": ev,
         "early": ev[:, np.searchsorted(frames, 10_000)] if frames[-1] >= 10_000 else ev[:, -1],
     }
     acc = [r[IDM_ACCURACY_EXPERT] for r in runs]
@@ -298,19 +328,35 @@ def parameter_table(rank_list=(1, 2, 4), n_states: int = 500, n_actions: int = 6
     from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics, OneHotEncoder
 
     full = n_states * n_actions * n_states
-    rows = [{"model": "full tensor |S| x |A| x |S|", "factor parameters": full, "all parameters": full,
-             "% of full tensor": 100.0}]
+    rows = [
+        {
+            "model": "full tensor |S| x |A| x |S|",
+            "factor parameters": full,
+            "all parameters": full,
+            "% of full tensor": 100.0,
+        }
+    ]
     for r in rank_list:
         m = DualInverseDynamics(OneHotEncoder(n_states), n_actions, rank=r)
         factors = m.M.numel() + m.N.numel()
-        rows.append({"model": f"dual, rank {r} (M_r, N_r)", "factor parameters": factors,
-                     "all parameters": sum(p.numel() for p in m.parameters()),
-                     "% of full tensor": round(100 * factors / full, 2)})
+        rows.append(
+            {
+                "model": f"dual, rank {r} (M_r, N_r)",
+                "factor parameters": factors,
+                "all parameters": sum(p.numel() for p in m.parameters()),
+                "% of full tensor": round(100 * factors / full, 2),
+            }
+        )
     mlp = MLPInverseDynamics(OneHotEncoder(n_states), n_actions)
     hidden = sum(p.numel() for p in mlp.mlp.parameters())
-    rows.append({"model": "MLP (two 128-unit ReLU layers)", "factor parameters": hidden,
-                 "all parameters": sum(p.numel() for p in mlp.parameters()),
-                 "% of full tensor": round(100 * hidden / full, 2)})
+    rows.append(
+        {
+            "model": "MLP (two 128-unit ReLU layers)",
+            "factor parameters": hidden,
+            "all parameters": sum(p.numel() for p in mlp.parameters()),
+            "% of full tensor": round(100 * hidden / full, 2),
+        }
+    )
     return rows
 
 
@@ -395,32 +441,60 @@ def analyse(out: str | Path, results: dict[str, list[dict]], meta: dict) -> dict
     # the optimum is the built-in expert's own exact return on this env (7.93 on Taxi), never assumed
     optimal = float(np.mean([r["optimal_return"] for rs in results.values() for r in rs]))
     env = meta.get("base", {}).get("env", {})
-    env_name = env.get("env_id", "Taxi-v4").split("-v")[0] + "".join(f" {v}" for v in env.get("kwargs", {}).values()
-                                                                   if isinstance(v, str))
+    env_name = env.get("env_id", "Taxi-v4").split("-v")[0] + "".join(
+        f" {v}" for v in env.get("kwargs", {}).values() if isinstance(v, str)
+    )
     S = {n: _stats(r, optimal) for n, r in results.items()}
     seeds = meta["seeds"]
     # aggregated curves
     with (out / "curves.csv").open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["config", "frames", "eval_return_mean", "eval_return_std", "return_mean_mean",
-                    "return_mean_std", "idm_accuracy_expert_mean", "idm_accuracy_expert_std", "seeds"])
+        w.writerow(
+            [
+                "config",
+                "frames",
+                "eval_return_mean",
+                "eval_return_std",
+                "return_mean_mean",
+                "return_mean_std",
+                "idm_accuracy_expert_mean",
+                "idm_accuracy_expert_std",
+                "seeds",
+            ]
+        )
         for n, runs in sorted(results.items()):
             frames, ev = _curve(runs, "eval_return")
             _, tr = _curve(runs, "return_mean")
             acc = S[n].get("idm")
             for i, fr in enumerate(frames):
-                w.writerow([n, int(fr), f"{np.nanmean(ev[:, i]):.4f}", f"{np.nanstd(ev[:, i]):.4f}",
-                            f"{np.nanmean(tr[:, i]):.4f}", f"{np.nanstd(tr[:, i]):.4f}",
-                            "" if acc is None else f"{np.nanmean(acc[:, i]):.4f}",
-                            "" if acc is None else f"{np.nanstd(acc[:, i]):.4f}", len(runs)])
+                w.writerow(
+                    [
+                        n,
+                        int(fr),
+                        f"{np.nanmean(ev[:, i]):.4f}",
+                        f"{np.nanstd(ev[:, i]):.4f}",
+                        f"{np.nanmean(tr[:, i]):.4f}",
+                        f"{np.nanstd(tr[:, i]):.4f}",
+                        "" if acc is None else f"{np.nanmean(acc[:, i]):.4f}",
+                        "" if acc is None else f"{np.nanstd(acc[:, i]):.4f}",
+                        len(runs),
+                    ]
+                )
     with (out / "final.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["config", "seed", "final_return", "auc", "frames_to_95pct", IDM_ACCURACY_EXPERT])
         for n, runs in sorted(results.items()):
             for i, r in enumerate(runs):
-                w.writerow([n, r["seed"], f"{r['final_return']:.4f}", f"{S[n]['auc'][i]:.4f}",
-                            "" if math.isnan(S[n]["reach"][i]) else int(S[n]["reach"][i]),
-                            "" if r[IDM_ACCURACY_EXPERT] is None else f"{r[IDM_ACCURACY_EXPERT]:.4f}"])
+                w.writerow(
+                    [
+                        n,
+                        r["seed"],
+                        f"{r['final_return']:.4f}",
+                        f"{S[n]['auc'][i]:.4f}",
+                        "" if math.isnan(S[n]["reach"][i]) else int(S[n]["reach"][i]),
+                        "" if r[IDM_ACCURACY_EXPERT] is None else f"{r[IDM_ACCURACY_EXPERT]:.4f}",
+                    ]
+                )
     import gymnasium as gym
 
     probe = gym.make(env.get("env_id", "Taxi-v4"), **env.get("kwargs", {}))
@@ -433,18 +507,34 @@ def analyse(out: str | Path, results: dict[str, list[dict]], meta: dict) -> dict
     # figures
     figs = []
     if "agents" in meta["groups"]:
-        _plot(S, ["hybrid_dual", "hybrid_mlp", "bc_dual", "bc_mlp", "il", "a2c"], out / "fig_agents.png",
-              f"{env_name} agents (mean ± std over {seeds} seeds)", optimal=optimal)
-        _plot(S, ["hybrid_dual", "hybrid_mlp"], out / "fig_action_prediction.png",
-              "inverse-model accuracy on the expert's actions (inside the hybrid agent)",
-              key="idm", ylabel="inferred = true expert action", ylim=(0, 1))
+        _plot(
+            S,
+            ["hybrid_dual", "hybrid_mlp", "bc_dual", "bc_mlp", "il", "a2c"],
+            out / "fig_agents.png",
+            f"{env_name} agents (mean ± std over {seeds} seeds)",
+            optimal=optimal,
+        )
+        _plot(
+            S,
+            ["hybrid_dual", "hybrid_mlp"],
+            out / "fig_action_prediction.png",
+            "inverse-model accuracy on the expert's actions (inside the hybrid agent)",
+            key="idm",
+            ylabel="inferred = true expert action",
+            ylim=(0, 1),
+        )
         figs += ["fig_agents.png", "fig_action_prediction.png"]
     if "ranks" in meta["groups"]:
         S_r = dict(S)
         if "hybrid_dual" in S:
             S_r["hybrid_dual_rank2"] = S["hybrid_dual"]
-        _plot(S_r, ["hybrid_dual_rank1", "hybrid_dual_rank2", "hybrid_dual_rank4", "a2c"], out / "fig_ranks.png",
-              f"{env_name}, rank of the dual model (mean ± std over {seeds} seeds)", optimal=optimal)
+        _plot(
+            S_r,
+            ["hybrid_dual_rank1", "hybrid_dual_rank2", "hybrid_dual_rank4", "a2c"],
+            out / "fig_ranks.png",
+            f"{env_name}, rank of the dual model (mean ± std over {seeds} seeds)",
+            optimal=optimal,
+        )
         figs.append("fig_ranks.png")
     if any(g.startswith("noise") for g in meta["groups"]):
         _plot_noise(S, out / "fig_noise.png", seeds, optimal, env_name)
@@ -464,40 +554,48 @@ def _claims(S, optimal: float) -> list[dict]:
         ok1, t1 = _cmp(S, "hybrid_dual", "bc_dual", "final")
         ok2, t2 = _cmp(S, "hybrid_mlp", "bc_mlp", "final")
         early_bc = np.mean(S["bc_dual"]["early"]) > np.mean(S["hybrid_dual"]["early"])
-        claims.append({
-            "claim": "C1: hybrids beat their pure-BC counterparts in the long run; pure BC rises fast early, then stalls",
-            "held": ok1 and ok2,
-            "evidence": f"{t1}; {t2}; greedy return at 10k frames: bc_dual {_ms(S['bc_dual']['early'])}, "
-                        f"hybrid_dual {_ms(S['hybrid_dual']['early'])} (BC ahead early: {'yes' if early_bc else 'no'})",
-        })
+        claims.append(
+            {
+                "claim": "C1: hybrids beat their pure-BC counterparts in the long run; pure BC rises fast early, then stalls",
+                "held": ok1 and ok2,
+                "evidence": f"{t1}; {t2}; greedy return at 10k frames: bc_dual {_ms(S['bc_dual']['early'])}, "
+                f"hybrid_dual {_ms(S['hybrid_dual']['early'])} (BC ahead early: {'yes' if early_bc else 'no'})",
+            }
+        )
         ok3, t3 = _cmp(S, "hybrid_dual", "hybrid_mlp", "auc")
         ok4, t4 = _cmp(S, "bc_dual", "bc_mlp", "auc")
         ok5, t5 = _cmp(S, "hybrid_dual", "hybrid_mlp", "idm_final")
-        claims.append({
-            "claim": "C2: the dual inverse model beats the MLP (Ours vs Hybrid-MLP, BC-Dual vs BC-MLP) and predicts expert actions more accurately",
-            "held": ok3 and ok4 and ok5,
-            "evidence": f"{t3}; {t4}; {t5}",
-        })
+        claims.append(
+            {
+                "claim": "C2: the dual inverse model beats the MLP (Ours vs Hybrid-MLP, BC-Dual vs BC-MLP) and predicts expert actions more accurately",
+                "held": ok3 and ok4 and ok5,
+                "evidence": f"{t3}; {t4}; {t5}",
+            }
+        )
     if have("hybrid_dual", "hybrid_mlp", "a2c"):
         ok6, t6 = _cmp(S, "hybrid_dual", "a2c", "auc")
         ok7, t7 = _cmp(S, "hybrid_mlp", "a2c", "auc")
-        claims.append({
-            "claim": "C3: both hybrids learn faster than A2C",
-            "held": ok6 and ok7,
-            "evidence": f"{t6}; {t7}; frames to 95 % of optimal: hybrid_dual {_reach_str(S['hybrid_dual']['reach'])}, "
-                        f"hybrid_mlp {_reach_str(S['hybrid_mlp']['reach'])}, a2c {_reach_str(S['a2c']['reach'])}",
-        })
+        claims.append(
+            {
+                "claim": "C3: both hybrids learn faster than A2C",
+                "held": ok6 and ok7,
+                "evidence": f"{t6}; {t7}; frames to 95 % of optimal: hybrid_dual {_reach_str(S['hybrid_dual']['reach'])}, "
+                f"hybrid_mlp {_reach_str(S['hybrid_mlp']['reach'])}, a2c {_reach_str(S['a2c']['reach'])}",
+            }
+        )
     if have("hybrid_dual_rank1", "hybrid_dual", "hybrid_dual_rank4", "a2c"):
         S2 = dict(S, hybrid_dual_rank2=S["hybrid_dual"])
         ok8, t8 = _cmp(S2, "hybrid_dual_rank2", "hybrid_dual_rank1", "auc")
         ok9, t9 = _cmp(S2, "hybrid_dual_rank1", "a2c", "auc")
         d, lo, hi = _diff_ci(S["hybrid_dual_rank4"]["auc"], S["hybrid_dual"]["auc"])
         same = lo < 0 < hi or abs(d) < 0.05 * abs(np.mean(S["hybrid_dual"]["auc"]))
-        claims.append({
-            "claim": "C4: rank 1 is worse than rank 2 but still ahead of A2C; rank 4 is about the same as rank 2",
-            "held": ok8 and ok9 and same,
-            "evidence": f"{t8}; {t9}; auc rank4 − rank2 = {d:+.2f} [95% CI {lo:+.2f}, {hi:+.2f}]",
-        })
+        claims.append(
+            {
+                "claim": "C4: rank 1 is worse than rank 2 but still ahead of A2C; rank 4 is about the same as rank 2",
+                "held": ok8 and ok9 and same,
+                "evidence": f"{t8}; {t9}; auc rank4 − rank2 = {d:+.2f} [95% CI {lo:+.2f}, {hi:+.2f}]",
+            }
+        )
     noise = [n for n in S if n.startswith("hybrid_dual_eta") or n.startswith("hybrid_dual_epsilon")]
     if noise:
         parts, held = [], True
@@ -506,24 +604,30 @@ def _claims(S, optimal: float) -> list[dict]:
             hy_opt = np.mean(S[n]["final"] >= 0.95 * optimal)
             bc_opt = np.mean(S[b]["final"] >= 0.95 * optimal) if b in S else math.nan
             held &= hy_opt >= 0.75 and (np.isnan(bc_opt) or bc_opt < hy_opt)
-            parts.append(f"{n.split('_')[-1]}: hybrid {_ms(S[n]['final'])} ({hy_opt:.0%} of seeds ≥ 95 % of optimal), "
-                         f"bc {_ms(S[b]['final']) if b in S else 'n/a'} ({bc_opt:.0%})")
-        claims.append({
-            "claim": "C5: under eta and epsilon noise the hybrid still reaches the optimal policy while BC gets stuck",
-            "held": bool(held),
-            "evidence": "; ".join(parts),
-        })
+            parts.append(
+                f"{n.split('_')[-1]}: hybrid {_ms(S[n]['final'])} ({hy_opt:.0%} of seeds ≥ 95 % of optimal), "
+                f"bc {_ms(S[b]['final']) if b in S else 'n/a'} ({bc_opt:.0%})"
+            )
+        claims.append(
+            {
+                "claim": "C5: under eta and epsilon noise the hybrid still reaches the optimal policy while BC gets stuck",
+                "held": bool(held),
+                "evidence": "; ".join(parts),
+            }
+        )
     return claims
 
 
 def _rerun_command(meta: dict) -> str:
     """The command line that trains this sweep again."""
+
     def flat(d, prefix="+base."):
         for k, v in d.items():
             if isinstance(v, dict):
                 yield from flat(v, f"{prefix}{k}.")
             else:
                 yield f"{prefix}{k}={str(v).lower() if isinstance(v, bool) else v}"
+
     args = [f"groups=[{','.join(meta['groups'])}]", f"seeds={meta['seeds']}", f"total_frames={meta['total_frames']}"]
     if meta.get("out_dir"):
         args.append(f"out_dir={meta['out_dir']}")
@@ -534,7 +638,8 @@ def _write_readme(out, S, results, meta, params, claims, figs, optimal: float, e
     seeds, frames = meta["seeds"], meta["total_frames"]
     rerun = _rerun_command(meta)
     lines = [
-        "# Taxi: reproduction of the paper's results" if env_name == "Taxi"
+        "# Taxi: reproduction of the paper's results"
+        if env_name == "Taxi"
         else f"# {env_name}: the paper's Taxi study on another env",
         "",
         f"{len(results)} configurations × {seeds} seeds × {frames:,} frames, trained with the batched fast path "
@@ -556,18 +661,39 @@ def _write_readme(out, S, results, meta, params, claims, figs, optimal: float, e
     ]
     for c in claims:
         lines.append(f"| {c['claim']} | {'**held**' if c['held'] else '**did not hold**'} | {c['evidence']} |")
-    lines += ["", "## Per configuration", "",
-              "| config | final return | auc | frames to 95 % | inverse-model accuracy |", "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Per configuration",
+        "",
+        "| config | final return | auc | frames to 95 % | inverse-model accuracy |",
+        "|---|---|---|---|---|",
+    ]
     for n in sorted(S):
         acc = _ms(100 * S[n]["idm_final"], 1) + " %" if "idm_final" in S[n] else "-"
         lines.append(f"| {n} | {_ms(S[n]['final'])} | {_ms(S[n]['auc'])} | {_reach_str(S[n]['reach'])} | {acc} |")
-    lines += ["", "## Parameters of the inverse models (computed by `parameter_table()`)", "",
-              "| model | factor parameters | all parameters | % of full tensor |", "|---|---|---|---|"]
+    lines += [
+        "",
+        "## Parameters of the inverse models (computed by `parameter_table()`)",
+        "",
+        "| model | factor parameters | all parameters | % of full tensor |",
+        "|---|---|---|---|",
+    ]
     for p in params:
-        lines.append(f"| {p['model']} | {p['factor parameters']:,} | {p['all parameters']:,} | {p['% of full tensor']} |")
-    lines += ["", "The paper's 4.37 % (Taxi) is the rank-2 factors M_r, N_r (128·128·2·2) over the 500·6·500 tensor; "
-              "the models' embedding and output layers come on top.", "", "## Figures", ""]
+        lines.append(
+            f"| {p['model']} | {p['factor parameters']:,} | {p['all parameters']:,} | {p['% of full tensor']} |"
+        )
+    lines += [
+        "",
+        "The paper's 4.37 % (Taxi) is the rank-2 factors M_r, N_r (128·128·2·2) over the 500·6·500 tensor; "
+        "the models' embedding and output layers come on top.",
+        "",
+        "## Figures",
+        "",
+    ]
     lines += [f"![{f}]({f})" for f in figs]
-    lines += ["", "Files: `curves.csv` (aggregated curves), `final.csv` (per seed), `parameters.csv`, "
-              "`runs.json` (every run's curve and summary)."]
+    lines += [
+        "",
+        "Files: `curves.csv` (aggregated curves), `final.csv` (per seed), `parameters.csv`, "
+        "`runs.json` (every run's curve and summary).",
+    ]
     (Path(out) / "README.md").write_text("\n".join(lines) + "\n")

@@ -1,6 +1,7 @@
 """Demo recording: an expert plays, its state sequences are kept (the actions only under
 ``EXPERT_ACTION_KEY``, for diagnostics). :func:`record_episodes` for gymnasium envs,
 :func:`record_demos` for Atari (a memory-mapped dataset with metadata)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -20,8 +21,17 @@ __all__ = ["record_episodes", "record_demos"]
 
 
 @torch.no_grad()
-def record_episodes(env_id: str, policy, num_episodes: int, max_steps: int, *, seed: int = 0,
-                    env_kwargs: dict | None = None, deterministic: bool = True, num_envs: int = 16):
+def record_episodes(
+    env_id: str,
+    policy,
+    num_episodes: int,
+    max_steps: int,
+    *,
+    seed: int = 0,
+    env_kwargs: dict | None = None,
+    deterministic: bool = True,
+    num_envs: int = 16,
+):
     """Plays ``num_episodes`` whole episodes of ``policy`` and returns them as expert
     pairs (:func:`~torchrl_hybrid.data.pairs_from_trajectories`: ``step`` and
     ``trajectory`` indices, the true actions under ``expert_action``) and the
@@ -31,8 +41,9 @@ def record_episodes(env_id: str, policy, num_episodes: int, max_steps: int, *, s
     round_ = 0
     while len(states) < num_episodes:
         n = min(num_envs, num_episodes - len(states))
-        env = make_toy_text_env(env_id, n, max_episode_steps=max_steps, seed=seed + 1000 * round_,
-                                env_kwargs=env_kwargs)
+        env = make_toy_text_env(
+            env_id, n, max_episode_steps=max_steps, seed=seed + 1000 * round_, env_kwargs=env_kwargs
+        )
         with set_exploration_type(etype):
             td = env.rollout(max_steps, policy, break_when_any_done=False)
         env.close()
@@ -41,12 +52,11 @@ def record_episodes(env_id: str, policy, num_episodes: int, max_steps: int, *, s
             raise RuntimeError(f"an expert episode did not end within {max_steps} steps; raise env.max_episode_steps")
         for i in range(n):
             end = int(done[i].nonzero()[0])  # the first episode of env i: steps 0..end
-            states.append(torch.cat([td["observation"][i, : end + 1], td["next", "observation"][i, end: end + 1]]))
+            states.append(torch.cat([td["observation"][i, : end + 1], td["next", "observation"][i, end : end + 1]]))
             actions.append(td["action"][i, : end + 1])
             returns.append(float(td["next", "reward"][i, : end + 1].sum()))
         round_ += 1
     return pairs_from_trajectories(states, actions), torch.tensor(returns)
-
 
 
 @torch.no_grad()
@@ -81,15 +91,22 @@ def record_demos(
         raise ValueError(f"num_trajectories and max_steps must be >= 1, got {num_trajectories}, {max_steps}")
     out = Path(out_path)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:  # before minutes of play
-        raise ValueError(f"{out} already exists and is not empty; pass overwrite=true to replace it "
-                         "or choose another folder")
+        raise ValueError(
+            f"{out} already exists and is not empty; pass overwrite=true to replace it or choose another folder"
+        )
     actor, ckpt = load_expert(expert_path, device)
     device = module_device(actor)
     torch.manual_seed(seed)  # the expert's sampled actions: the same seed records the same demos
     game = ckpt["config"]["env"]["game"]
     pre = ckpt["preprocessing"]
-    env = AtariEnv(game, num_envs, seed=seed, num_threads=ckpt["config"]["env"]["num_threads"],
-                   noop_max=pre["noop_max"], max_episode_frames=pre["max_episode_frames"])
+    env = AtariEnv(
+        game,
+        num_envs,
+        seed=seed,
+        num_threads=ckpt["config"]["env"]["num_threads"],
+        noop_max=pre["noop_max"],
+        max_episode_frames=pre["max_episode_frames"],
+    )
     env.check_policy(actor)
     td = env.reset()
     # per env: the trajectory being recorded, or None while waiting for the episode to end
@@ -114,10 +131,17 @@ def record_demos(
                 states[i].append(nxt["observation"][i].clone())
                 actions[i].append(int(td["action"][i]))
                 scores[i] += float(nxt["score"][i])
-                end = ("life" if cut == "life" and bool(lives[i] < lives0[i])
-                       else "point" if cut == "point" and float(nxt["score"][i]) < 0
-                       else "episode" if bool(done[i])
-                       else "max_steps" if len(actions[i]) >= max_steps else None)
+                end = (
+                    "life"
+                    if cut == "life" and bool(lives[i] < lives0[i])
+                    else "point"
+                    if cut == "point" and float(nxt["score"][i]) < 0
+                    else "episode"
+                    if bool(done[i])
+                    else "max_steps"
+                    if len(actions[i]) >= max_steps
+                    else None
+                )
                 if end is not None and len(trajs) < num_trajectories:
                     ends.append(end)
                     trajs.append(torch.stack(states[i]))
@@ -134,11 +158,18 @@ def record_demos(
     demos = pairs_from_trajectories(trajs, acts)
     lengths = [len(a) for a in acts]
     meta = {
-        "game": game, "preprocessing": pre, "expert_checkpoint": str(Path(expert_path).resolve()),
-        "expert_frames": ckpt.get("total_frames_seen", ckpt["config"]["total_frames"]), "num_trajectories": len(trajs),
-        "returns": returns, "lengths": lengths, "ends": ends, "deterministic": deterministic, "seed": seed,
-        "cut": {"life": "first life lost", "point": "first point lost (negative reward)",
-                "episode": "episode end"}[cut] + f", episode end or {max_steps} steps",
+        "game": game,
+        "preprocessing": pre,
+        "expert_checkpoint": str(Path(expert_path).resolve()),
+        "expert_frames": ckpt.get("total_frames_seen", ckpt["config"]["total_frames"]),
+        "num_trajectories": len(trajs),
+        "returns": returns,
+        "lengths": lengths,
+        "ends": ends,
+        "deterministic": deterministic,
+        "seed": seed,
+        "cut": {"life": "first life lost", "point": "first point lost (negative reward)", "episode": "episode end"}[cut]
+        + f", episode end or {max_steps} steps",
     }
     save_demos(demos, out_path, meta, overwrite=overwrite)
     return meta

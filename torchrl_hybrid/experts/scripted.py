@@ -7,10 +7,11 @@ gymnasium family plays to record the state-only demos
 (:func:`~torchrl_hybrid.experts.record_episodes`) and to measure the expert's return, as it
 does with a checkpoint. Two such experts ship here, stated as scripted, not learned.
 """
+
 from __future__ import annotations
 
 import importlib
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 from tensordict.nn import TensorDictModule
@@ -46,8 +47,10 @@ class CallablePolicy(nn.Module):
         action = self.fn(observation)
         action = torch.as_tensor(action)
         if action.shape != observation.shape[:-1]:
-            raise ValueError(f"the scripted expert returned actions of shape {tuple(action.shape)} for "
-                             f"observations of shape {tuple(observation.shape)}; return one action per row")
+            raise ValueError(
+                f"the scripted expert returned actions of shape {tuple(action.shape)} for "
+                f"observations of shape {tuple(observation.shape)}; return one action per row"
+            )
         return action.long()
 
 
@@ -62,8 +65,10 @@ def load_callable_expert(spec: str) -> TensorDictModule:
     try:
         fn = getattr(importlib.import_module(module_name), name)
     except (ImportError, AttributeError) as err:
-        raise ValueError(f"demo.expert={spec!r}: cannot import {name!r} from {module_name!r} ({err}); give "
-                         "module:function, e.g. torchrl_hybrid.experts.scripted:mountain_car_energy") from None
+        raise ValueError(
+            f"demo.expert={spec!r}: cannot import {name!r} from {module_name!r} ({err}); give "
+            "module:function, e.g. torchrl_hybrid.experts.scripted:mountain_car_energy"
+        ) from None
     if not callable(fn):
         raise ValueError(f"demo.expert={spec!r} is not callable")
     return TensorDictModule(CallablePolicy(fn), in_keys=["observation"], out_keys=["action"])

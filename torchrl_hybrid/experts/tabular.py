@@ -1,4 +1,5 @@
 """Optimal experts for tabular MDPs, computed from the env's own transition table."""
+
 from __future__ import annotations
 
 import torch
@@ -39,7 +40,7 @@ def optimal_policy(model: TabularModel, gamma: float = 0.99) -> tuple[torch.Tens
     shortest-path expert (mean return 7.93)."""
     _, Q = value_iteration(model, gamma)
     best = Q.max(-1, keepdim=True).values
-    optimal = (Q >= best - 1e-6)
+    optimal = Q >= best - 1e-6
     return optimal.float().argmax(-1), optimal
 
 

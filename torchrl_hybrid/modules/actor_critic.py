@@ -1,11 +1,12 @@
 """Actor and critic builders (TensorDict-wrapped at the edge, plain nn inside)."""
+
 from __future__ import annotations
 
 import torch
 from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from torch import nn
-from torchrl.modules import ProbabilisticActor, ValueOperator
 from torch.distributions import Categorical
+from torchrl.modules import ProbabilisticActor, ValueOperator
 
 from torchrl_hybrid.modules.encoders import MLPEncoder, OneHotEncoder
 
@@ -63,8 +64,9 @@ def make_mlp_actor_critic(
     nn.init.orthogonal_(head.weight, 0.01)
     nn.init.zeros_(head.bias)
     actor = make_policy(nn.Sequential(MLPEncoder(obs_dim, hidden, num_layers), head))
-    critic = ValueOperator(nn.Sequential(MLPEncoder(obs_dim, hidden, num_layers), nn.Linear(hidden, 1)),
-                           in_keys=["observation"])
+    critic = ValueOperator(
+        nn.Sequential(MLPEncoder(obs_dim, hidden, num_layers), nn.Linear(hidden, 1)), in_keys=["observation"]
+    )
     return actor, critic
 
 

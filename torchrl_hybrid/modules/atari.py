@@ -1,15 +1,17 @@
 """The paper's Atari networks: a shared CNN encoder, linear actor and critic heads."""
+
 from __future__ import annotations
 
 import math
 import weakref
+from collections.abc import Callable
 
 import torch
 from tensordict.nn import InteractionType, TensorDictModule, TensorDictSequential
 from tensordict.nn.probabilistic import interaction_type
 from torch import nn
-from torchrl.modules import ProbabilisticActor
 from torch.distributions import Categorical
+from torchrl.modules import ProbabilisticActor
 
 __all__ = ["AtariEncoder", "AtariCollectionPolicy", "make_atari_actor_critic", "orthogonal_init_"]
 
@@ -31,9 +33,12 @@ class AtariEncoder(nn.Module):
     def __init__(self, stack: int = 4, size: int = 84, out_features: int = 512, channels_last: bool = True):
         super().__init__()
         self.convs = nn.Sequential(
-            nn.Conv2d(stack, 32, 8, stride=4), nn.ReLU(),
-            nn.Conv2d(32, 64, 4, stride=2), nn.ReLU(),
-            nn.Conv2d(64, 32, 3, stride=1), nn.ReLU(),
+            nn.Conv2d(stack, 32, 8, stride=4),
+            nn.ReLU(),
+            nn.Conv2d(32, 64, 4, stride=2),
+            nn.ReLU(),
+            nn.Conv2d(64, 32, 3, stride=1),
+            nn.ReLU(),
             nn.Flatten(),
         )
         with torch.no_grad():
@@ -41,21 +46,24 @@ class AtariEncoder(nn.Module):
         self.fc = nn.Sequential(nn.Linear(n, out_features), nn.ReLU())
         self.out_features = out_features
         self.in_shape = (stack, size, size)
-        self._cache = None
+        # (weakref to the input frames, key, features, the frames' _version, grad mode)
+        self._cache: tuple[weakref.ref, tuple, torch.Tensor, int, bool] | None = None
         self.reuse_features = True
         # oneDNN's convolutions run their CPU backward pass faster on channels-last
         # tensors (benchmarks/atari_profile.py prints both layouts' forward + backward time)
         self.channels_last = channels_last
         if channels_last:
-            self.convs.to(memory_format=torch.channels_last)
-        self._compiled = None  # compile_cnn(): the compiled CNN (convs + fc), else the plain modules
+            self.convs.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # missing from torch's stub
+        self._compiled: Callable[[torch.Tensor], torch.Tensor] | None = (
+            None  # compile_cnn(): the compiled CNN (convs + fc), else the plain modules
+        )
         self.compile_mode = "off"
 
     COMPILE_MODES = ("off", "default", "reduce-overhead", "max-autotune")
     # modes that record a CUDA graph per input shape: batches are padded to a few fixed sizes
     CUDA_GRAPH_MODES = ("reduce-overhead", "max-autotune")
 
-    def compile_cnn(self, mode: str = "default") -> "AtariEncoder":
+    def compile_cnn(self, mode: str = "default") -> AtariEncoder:
         """Runs the CNN (the convolutions and the 512-unit layer: all of an update's
         FLOPs) through ``torch.compile`` with ``mode`` (``"reduce-overhead"`` adds CUDA
         graphs on a GPU); ``"off"`` goes back to the plain modules. Same weights, same
@@ -117,17 +125,29 @@ class AtariEncoder(nn.Module):
             return self._forward(frames)
         grad = torch.is_grad_enabled()
         cached = self._cache
-        src = cached[0]() if cached is not None else None
+        if cached is None:
+            out = self._forward(frames)
+            if frames.is_contiguous():
+                self._cache = (weakref.ref(frames), key, out, frames._version, grad)
+            return out
+        src = cached[0]()
         # the weak reference keeps the check honest: while the cached input lives, its
         # memory cannot have been reused by another tensor
         valid = src is not None and src._version == cached[3] and frames.is_contiguous()
         if valid and cached[1] == key and (cached[4] == grad or not grad):
             out = cached[2] if cached[4] == grad else cached[2].detach()
             return out.reshape(*frames.shape[:-3], self.out_features)
-        if valid and grad and cached[4] and cached[1][1:] == key[1:] and frames.numel() >= 2 * math.prod(self.in_shape):
-            out = self._shifted(frames, src, cached[2])
-            if out is not None:
-                return out  # not cached: the cache keeps the input the rows were matched against
+        if (
+            src is not None
+            and valid
+            and grad
+            and cached[4]
+            and cached[1][1:] == key[1:]
+            and frames.numel() >= 2 * math.prod(self.in_shape)
+        ):
+            shifted = self._shifted(frames, src, cached[2])
+            if shifted is not None:
+                return shifted  # not cached: the cache keeps the input the rows were matched against
         out = self._forward(frames)
         # a no-grad call (e.g. the critic on a few next observations before the loss)
         # does not evict features kept for the current update's backward pass
@@ -171,7 +191,7 @@ class AtariEncoder(nn.Module):
         return feats.reshape(*frames.shape[:-3], self.out_features)
 
     def _forward(self, frames: torch.Tensor) -> torch.Tensor:
-        lead = frames.shape[: -3]
+        lead = frames.shape[:-3]
         if tuple(frames.shape[-3:]) != self.in_shape:
             raise ValueError(f"expected frame stacks of shape {self.in_shape}, got {tuple(frames.shape[-3:])}")
         x = frames.reshape(-1, *self.in_shape).float().div_(255.0)
@@ -184,8 +204,11 @@ class AtariEncoder(nn.Module):
             return self._cnn(x).reshape(*lead, self.out_features)
         n = x.shape[0]
         if self.compile_mode in self.CUDA_GRAPH_MODES and n != padded_batch_size(n):
-            fmt = torch.channels_last if self.channels_last and x.dim() == 4 and x.is_contiguous(
-                memory_format=torch.channels_last) else torch.contiguous_format
+            fmt = (
+                torch.channels_last
+                if self.channels_last and x.dim() == 4 and x.is_contiguous(memory_format=torch.channels_last)
+                else torch.contiguous_format
+            )
             padded = x.new_zeros((padded_batch_size(n), *x.shape[1:])).contiguous(memory_format=fmt)
             padded[:n] = x
             return self._compiled(padded)[:n].reshape(*lead, self.out_features)
@@ -207,7 +230,8 @@ def orthogonal_init_(module: nn.Module, gain: float) -> nn.Module:
             nn.init.orthogonal_(w, gain)
             with torch.no_grad():
                 m.weight.copy_(w)  # keeps the weight's memory format (channels-last convs)
-            nn.init.zeros_(m.bias)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
     return module
 
 
@@ -268,12 +292,16 @@ def make_atari_actor_critic(n_actions: int, encoder: AtariEncoder | None = None,
     policy_head = TensorDictModule(policy_linear, in_keys=["features"], out_keys=["logits"])
     value_head = TensorDictModule(value_linear, in_keys=["features"], out_keys=["state_value"])
     actor = ProbabilisticActor(
-        TensorDictSequential(features, policy_head), in_keys=["logits"], out_keys=["action"],
-        distribution_class=Categorical, return_log_prob=True,
+        TensorDictSequential(features, policy_head),
+        in_keys=["logits"],
+        out_keys=["action"],
+        distribution_class=Categorical,
+        return_log_prob=True,
     )
     critic = TensorDictSequential(features, value_head, selected_out_keys=["state_value"])
     collection_policy = TensorDictModule(
-        AtariCollectionPolicy(encoder, policy_linear, value_linear), in_keys=["observation"],
+        AtariCollectionPolicy(encoder, policy_linear, value_linear),
+        in_keys=["observation"],
         out_keys=["action", "action_log_prob", "state_value"],
     )
     return actor, critic, encoder, collection_policy

@@ -1,5 +1,6 @@
 """State encoders e_s: what the paper feeds to W_s (a one-hot vector for Taxi,
 a CNN's output for Atari). Every encoder exposes ``out_features``."""
+
 from __future__ import annotations
 
 import torch
@@ -67,5 +68,7 @@ class MLPEncoder(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         if obs.shape[-1] != self.in_features:
-            raise ValueError(f"MLPEncoder expects observations of size {self.in_features}, got shape {tuple(obs.shape)}")
+            raise ValueError(
+                f"MLPEncoder expects observations of size {self.in_features}, got shape {tuple(obs.shape)}"
+            )
         return self.net(obs.float())

@@ -10,6 +10,7 @@ Both take raw observations (whatever the state encoder eats) and expose
   ``next_state_logits`` (P_f(s' | s, a));
 * ``infer(obs, next_obs) -> [*B]``: M(s, s') = argmax_a P_i(a | s, s'), no gradient.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,7 +34,7 @@ def _state_projection(encoder: nn.Module, d_state: int) -> nn.Linear:
     """W_s. On a one-hot e_s it is an embedding table, so it is initialised like
     ``nn.Embedding`` (N(0, 1)); the default Linear init (U(+-1/sqrt(n))) makes
     h_s so small that the three-way product of the dual model barely learns."""
-    W_s = nn.Linear(encoder.out_features, d_state, bias=False)
+    W_s = nn.Linear(int(encoder.out_features), d_state, bias=False)  # type: ignore[arg-type]  # an int on every encoder
     if isinstance(encoder, OneHotEncoder):
         nn.init.normal_(W_s.weight, 0.0, 1.0)
     return W_s
@@ -128,7 +129,7 @@ class DualInverseDynamics(InverseDynamicsModel):
         self.N = nn.Parameter(torch.randn(rank, d, d) / math.sqrt(d))
         self.action_head = nn.Linear(d, n_actions)  # W_a, b_a
         self.has_forward_head = n_states is not None
-        if self.has_forward_head:
+        if n_states is not None:
             self.W_ds_prime = nn.Linear(d_state, d, bias=False)  # W'_ds
             self.next_state_head = nn.Linear(d, n_states)  # W_s', b_s'
 

@@ -1,4 +1,5 @@
 """Behavioural cloning on expert states, with actions inferred by an inverse model."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -118,8 +119,9 @@ class ExpertBCLoss(LossModule):
         if not 0.0 <= prior_floor <= 1.0:
             raise ValueError(f"prior_floor={prior_floor} must be in [0, 1] (0: no prior correction)")
         if inverse_model is None and (labels != "argmax" or confidence > 0 or prior_floor > 0):
-            raise ValueError("soft labels, a confidence gate and the prior correction need an inverse model "
-                             "(they read P_i)")
+            raise ValueError(
+                "soft labels, a confidence gate and the prior correction need an inverse model (they read P_i)"
+            )
         in_keys = None
         if inverse_model is not None:
             inverse_model, in_keys = unwrap_inverse_model(inverse_model)
@@ -152,8 +154,9 @@ class ExpertBCLoss(LossModule):
         n = tensordict.batch_size.numel()
         if n == 0:
             zero = torch.zeros((), device=self.bc_coeff.device)
-            return TensorDict({k: zero for k in ("loss_bc", "bc_log_prob", "bc_batch_size", "bc_kept",
-                                                 "bc_policy_entropy")}, [])
+            return TensorDict(
+                {k: zero for k in ("loss_bc", "bc_log_prob", "bc_batch_size", "bc_kept", "bc_policy_entropy")}, []
+            )
         # Only the actor's inputs go in: the actor may write its own "action". The
         # policy runs first so that an encoder shared with the inverse model can hand
         # its features to the (no-grad) labelling pass.
@@ -162,8 +165,9 @@ class ExpertBCLoss(LossModule):
             labels, p_i = self.labels(tensordict), None
         else:
             with torch.no_grad():
-                p_i = self.inverse_model.action_logits(tensordict.get(self.tensor_keys.observation),
-                                                       tensordict.get(self.tensor_keys.next_observation)).softmax(-1)
+                p_i = self.inverse_model.action_logits(
+                    tensordict.get(self.tensor_keys.observation), tensordict.get(self.tensor_keys.next_observation)
+                ).softmax(-1)
                 if self.prior_floor > 0:  # divide out the agent's own policy, the inverse model's prior
                     p_i = p_i / dist.probs.detach().clamp_min(self.prior_floor)
                     p_i = p_i / p_i.sum(-1, keepdim=True)

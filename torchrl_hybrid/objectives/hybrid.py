@@ -1,4 +1,5 @@
 """Composition of an RL loss with the inverse-dynamics and expert BC losses."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -93,7 +94,9 @@ class HybridLoss(LossModule):
                 )
             if name == "rl":
                 policy = self._policy_slots(sub)
-                if policy.batch_size.numel() == 0:  # a minibatch of explorer transitions only (PPO): nothing to learn from
+                if (
+                    policy.batch_size.numel() == 0
+                ):  # a minibatch of explorer transitions only (PPO): nothing to learn from
                     parts[name] = self._zero_loss(loss(sub))
                     continue
                 sub = policy
@@ -105,8 +108,9 @@ class HybridLoss(LossModule):
         """The RL loss's entries with every ``loss_*`` term zero but still in the graph (computed
         on off-policy rows, then multiplied by 0): the keys, the sum and each term's backward stay
         as in any other step, and no gradient comes from it."""
-        return out.named_apply(lambda k, v: v.nan_to_num(0.0, 0.0, 0.0) * 0.0 if k.startswith("loss_") else v,
-                               filter_empty=False)
+        return out.named_apply(
+            lambda k, v: v.nan_to_num(0.0, 0.0, 0.0) * 0.0 if k.startswith("loss_") else v, filter_empty=False
+        )
 
     def _policy_slots(self, sub: TensorDictBase) -> TensorDictBase:
         """The agent's transitions without the explorer slots' (``explore``, written by

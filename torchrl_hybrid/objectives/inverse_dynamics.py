@@ -1,4 +1,5 @@
 """Inverse-dynamics losses, trained on the agent's own (s, a, s') transitions."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -123,8 +124,8 @@ class InverseDynamicsLoss(LossModule):
             obs, next_obs, action = obs[mask], next_obs[mask], action[mask]
         else:
             n = tensordict.batch_size.numel()
-            obs = obs.reshape(n, *obs.shape[tensordict.ndim:])
-            next_obs = next_obs.reshape(n, *next_obs.shape[tensordict.ndim:])
+            obs = obs.reshape(n, *obs.shape[tensordict.ndim :])
+            next_obs = next_obs.reshape(n, *next_obs.shape[tensordict.ndim :])
             action = action.reshape(n)
         return obs, action.long(), next_obs
 
@@ -235,7 +236,5 @@ class DualInverseDynamicsLoss(InverseDynamicsLoss):
                     "the forward term -log P_f(s'|s,a) needs integer state-index observations; "
                     f"got dtype {next_obs.dtype}, shape {tuple(next_obs.shape)}"
                 )
-            out["loss_forward"] = self.forward_coeff * F.cross_entropy(
-                terms["next_state_logits"], next_obs.long()
-            )
+            out["loss_forward"] = self.forward_coeff * F.cross_entropy(terms["next_state_logits"], next_obs.long())
         return out

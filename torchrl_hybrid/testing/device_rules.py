@@ -32,6 +32,7 @@ Examples:
     >>> [b.rule for b in check.breaches]
     ['mixed devices']
 """
+
 from __future__ import annotations
 
 import collections
@@ -70,8 +71,10 @@ def register_stand_in() -> torch.device:
         return _DEVICE
     name = torch._C._get_privateuse1_backend_name()
     if name != "privateuseone":
-        raise RuntimeError(f"DeviceRuleCheck needs PyTorch's PrivateUse1 backend, but this process has already "
-                           f"given it to {name!r}; run the check in a process without that backend")
+        raise RuntimeError(
+            f"DeviceRuleCheck needs PyTorch's PrivateUse1 backend, but this process has already "
+            f"given it to {name!r}; run the check in a process without that backend"
+        )
     _setup_privateuseone_for_python_backend(STAND_IN_NAME, backend_module=_StandInModule())
     # Ops reach the backend itself, not StandInTensor.__torch_dispatch__, when no argument is a
     # stand-in tensor (factories: torch.empty(..., device="standin")) or when C++ code has
@@ -98,17 +101,30 @@ def _check_autograd_sees_the_device() -> None:
     except RuntimeError as err:
         if "device_ready_queues_" not in str(err):
             raise
-        raise RuntimeError("DeviceRuleCheck: this process ran a backward pass before the stand-in device was "
-                           "registered, so autograd has no queue for it; call "
-                           "torchrl_hybrid.testing.register_stand_in() first (e.g. in conftest.py)") from None
+        raise RuntimeError(
+            "DeviceRuleCheck: this process ran a backward pass before the stand-in device was "
+            "registered, so autograd has no queue for it; call "
+            "torchrl_hybrid.testing.register_stand_in() first (e.g. in conftest.py)"
+        ) from None
     finally:
         if check is not None:
             check.syncs.clear()
 
 
 _LIBRARIES = ()
-_BACKEND_OPS = ("empty.memory_format", "empty_strided", "copy_", "_copy_from", "_copy_from_and_resize", "_to_copy",
-                "set_.source_Storage_storage_offset", "resize_", "_local_scalar_dense", "view", "as_strided")
+_BACKEND_OPS = (
+    "empty.memory_format",
+    "empty_strided",
+    "copy_",
+    "_copy_from",
+    "_copy_from_and_resize",
+    "_to_copy",
+    "set_.source_Storage_storage_offset",
+    "resize_",
+    "_local_scalar_dense",
+    "view",
+    "as_strided",
+)
 
 
 def _backend_kernel(op, *args, **kwargs):
@@ -158,8 +174,14 @@ _DEVICE: torch.device | None = None  # torch.device("standin", 0), once register
 # ops whose result size or value the host must read from the device: a sync on CUDA
 _SYNC_OPS = {
     aten._local_scalar_dense.default,  # .item(), bool(), float(), int()
-    aten.nonzero.default, aten.nonzero_static.default, aten.masked_select.default, aten.equal.default,
-    aten.is_nonzero.default, aten._unique2.default, aten.unique_consecutive.default, aten.unique_dim.default,
+    aten.nonzero.default,
+    aten.nonzero_static.default,
+    aten.masked_select.default,
+    aten.equal.default,
+    aten.is_nonzero.default,
+    aten._unique2.default,
+    aten.unique_consecutive.default,
+    aten.unique_dim.default,
     aten.repeat_interleave.Tensor,
 }
 _FACTORY_KWARGS = ("device",)
@@ -189,12 +211,18 @@ class StandInTensor(torch.Tensor):
         if isinstance(elem, StandInTensor):
             raise TypeError("StandInTensor wraps a CPU tensor, not another StandInTensor")
         r = torch.Tensor._make_wrapper_subclass(
-            cls, elem.size(), strides=elem.stride(), storage_offset=elem.storage_offset(), dtype=elem.dtype,
-            layout=elem.layout, device=_DEVICE,
+            cls,
+            elem.size(),
+            strides=elem.stride(),
+            storage_offset=elem.storage_offset(),
+            dtype=elem.dtype,
+            layout=elem.layout,
+            device=_DEVICE,
             requires_grad=elem.requires_grad if requires_grad is None else requires_grad,
             # sizes and strides are read from the CPU data on every query: an out= op
             # (torch.arange(..., device=) fills an empty tensor) resizes the data, not the wrapper
-            dispatch_sizes_strides_policy="sizes")
+            dispatch_sizes_strides_policy="sizes",
+        )
         r.elem = elem
         return r
 
@@ -211,8 +239,7 @@ class StandInTensor(torch.Tensor):
             check = DeviceRuleCheck.current()
             if name == "numpy" or name == "__array__":
                 if check is not None:
-                    check._breach("numpy() of a device tensor", f"Tensor.{name}",
-                                  "CUDA needs .cpu() first")
+                    check._breach("numpy() of a device tensor", f"Tensor.{name}", "CUDA needs .cpu() first")
             elif check is not None:
                 check._sync(f"Tensor.{name}")
             return getattr(args[0].elem, name)(*args[1:], **kwargs)
@@ -242,8 +269,11 @@ _METADATA_OPS = {
     aten.is_contiguous.default: lambda t: t.is_contiguous(),
     aten.is_contiguous.memory_format: lambda t, fmt: t.is_contiguous(memory_format=fmt),
     aten.is_strides_like_format.default: lambda t, fmt: t.is_contiguous(memory_format=fmt),
-    aten.is_non_overlapping_and_dense.default: lambda t: torch._C._is_non_overlapping_and_dense(t)
-    if hasattr(torch._C, "_is_non_overlapping_and_dense") else t.is_contiguous(),
+    aten.is_non_overlapping_and_dense.default: lambda t: (
+        torch._C._is_non_overlapping_and_dense(t)
+        if hasattr(torch._C, "_is_non_overlapping_and_dense")
+        else t.is_contiguous()
+    ),
 }
 
 
@@ -269,7 +299,7 @@ class DeviceRuleCheck:
             recording it (useful to get a full traceback).
     """
 
-    _active: list["DeviceRuleCheck"] = []
+    _active: list[DeviceRuleCheck] = []
     _autograd_checked = False
 
     def __init__(self, raise_on_breach: bool = False):
@@ -281,10 +311,10 @@ class DeviceRuleCheck:
 
     # -- entering and leaving --------------------------------------------------------
     @classmethod
-    def current(cls) -> "DeviceRuleCheck | None":
+    def current(cls) -> DeviceRuleCheck | None:
         return cls._active[-1] if cls._active else None
 
-    def __enter__(self) -> "DeviceRuleCheck":
+    def __enter__(self) -> DeviceRuleCheck:
         from torchrl_hybrid.utils import device as device_mod
 
         register_stand_in()
@@ -376,28 +406,36 @@ class DeviceRuleCheck:
             base, idx = args[0], [i for i in args[1] if i is not None]
             if not isinstance(base, StandInTensor) and any(isinstance(i, StandInTensor) for i in idx):
                 if base.ndim > 0:
-                    self._breach("CPU tensor indexed with a device index", name,
-                                 f"base {tuple(base.shape)} on the CPU")
+                    self._breach("CPU tensor indexed with a device index", name, f"base {tuple(base.shape)} on the CPU")
             if isinstance(base, StandInTensor) and any(i.dtype == torch.bool for i in idx):
                 self._sync("boolean-mask indexing")
         # the generator rule
         gen = kwargs.get("generator")
         if gen is not None and gen.device.type == "cpu" and (on_dev or to_dev):
-            self._breach("CPU torch.Generator on a device op", name, "pass a generator on the device, "
-                         "or draw on the CPU and move the result")
+            self._breach(
+                "CPU torch.Generator on a device op",
+                name,
+                "pass a generator on the device, or draw on the CPU and move the result",
+            )
         # the mixing rule (copies between devices are legal; 0-dim CPU tensors are scalars;
         # a device tensor may be indexed with CPU indices: CUDA moves them)
         if on_dev and func not in _CROSS_DEVICE_OPS:
             if func in _INDEX_OPS:
-                exempt = {id(i) for i in args[1] if i is not None} if isinstance(args[0], StandInTensor) else \
-                    {id(t) for t in cpu}  # a CPU base with device indices is reported above
+                exempt = (
+                    {id(i) for i in args[1] if i is not None}
+                    if isinstance(args[0], StandInTensor)
+                    else {id(t) for t in cpu}
+                )  # a CPU base with device indices is reported above
             else:
                 exempt = set()
             big = [t for t in cpu if t.ndim > 0 and id(t) not in exempt]
             if big:
-                self._breach("mixed devices", name,
-                             f"device tensors {[tuple(t.shape) for t in on_dev][:3]} with CPU tensors "
-                             f"{[tuple(t.shape) for t in big][:3]}")
+                self._breach(
+                    "mixed devices",
+                    name,
+                    f"device tensors {[tuple(t.shape) for t in on_dev][:3]} with CPU tensors "
+                    f"{[tuple(t.shape) for t in big][:3]}",
+                )
         out_on_dev = to_dev or (bool(on_dev) and not to_host and func not in _HOST_RESULT_OPS)
         if func is aten.copy_.default:
             out_on_dev = isinstance(args[0], StandInTensor)
@@ -420,8 +458,11 @@ class DeviceRuleCheck:
         out = func(*args_, **kwargs_)
         if out_on_dev is None:  # no check active: results stay wrapped where inputs were
             out_on_dev = any(isinstance(x, StandInTensor) for x in tree_flatten((args, kwargs))[0])
-            if func is aten._to_copy.default and kwargs.get("device") is not None \
-                    and not _is_stand_in_device(kwargs.get("device")):
+            if (
+                func is aten._to_copy.default
+                and kwargs.get("device") is not None
+                and not _is_stand_in_device(kwargs.get("device"))
+            ):
                 out_on_dev = False
         if func is aten.copy_.default or (func._schema.is_mutable and func.__name__.endswith("_")):
             # in-place ops return their first argument: give back the caller's object
@@ -429,12 +470,17 @@ class DeviceRuleCheck:
                 return args[0]
         if not out_on_dev:
             return out
-        return tree_map(lambda t: StandInTensor(t) if isinstance(t, torch.Tensor) and not isinstance(t, StandInTensor)
-                        else t, out)
+        return tree_map(
+            lambda t: StandInTensor(t) if isinstance(t, torch.Tensor) and not isinstance(t, StandInTensor) else t, out
+        )
 
 
-_CROSS_DEVICE_OPS = {aten._to_copy.default, aten.copy_.default, aten.lift_fresh.default,
-                     aten._local_scalar_dense.default}
+_CROSS_DEVICE_OPS = {
+    aten._to_copy.default,
+    aten.copy_.default,
+    aten.lift_fresh.default,
+    aten._local_scalar_dense.default,
+}
 _INDEX_OPS = {aten.index.Tensor, aten.index_put_.default, aten.index_put.default, aten._index_put_impl_.default}
 _HOST_RESULT_OPS = {aten._local_scalar_dense.default, aten.equal.default, aten.is_nonzero.default}
 
@@ -466,25 +512,41 @@ def _third_party_patches():
     return [_patched(_single.Collector, "_get_sync_fn", _get_sync_fn), _patched(torch.Tensor, "pin_memory", pin_memory)]
 
 
-_LIBRARY_ROOTS = tuple({os.path.abspath(p) + os.sep for p in
-                        (sysconfig.get_paths()["stdlib"], sysconfig.get_paths()["purelib"],
-                         sysconfig.get_paths()["platlib"], os.path.dirname(os.path.dirname(torch.__file__)))})
+_LIBRARY_ROOTS = tuple(
+    {
+        os.path.abspath(p) + os.sep
+        for p in (
+            sysconfig.get_paths()["stdlib"],
+            sysconfig.get_paths()["purelib"],
+            sysconfig.get_paths()["platlib"],
+            os.path.dirname(os.path.dirname(torch.__file__)),
+        )
+    }
+)
 
 
 def _is_plumbing(path: str) -> bool:
     """torch's own dispatch and module-call frames: never the interesting library line."""
-    return any(part in path for part in (os.sep + "torch" + os.sep + "utils" + os.sep, os.sep + "_dynamo" + os.sep,
-                                         os.sep + "torch" + os.sep + "_compile.py", os.sep + "torch" + os.sep + "nn" + os.sep,
-                                         os.sep + "torch" + os.sep + "_tensor.py", os.sep + "pyvers" + os.sep,
-                                         os.sep + "torch" + os.sep + "overrides.py"))
+    return any(
+        part in path
+        for part in (
+            os.sep + "torch" + os.sep + "utils" + os.sep,
+            os.sep + "_dynamo" + os.sep,
+            os.sep + "torch" + os.sep + "_compile.py",
+            os.sep + "torch" + os.sep + "nn" + os.sep,
+            os.sep + "torch" + os.sep + "_tensor.py",
+            os.sep + "pyvers" + os.sep,
+            os.sep + "torch" + os.sep + "overrides.py",
+        )
+    )
 
 
 def _short(path: str) -> str:
     for root in (os.getcwd() + os.sep,):
         if path.startswith(root):
-            return path[len(root):]
+            return path[len(root) :]
     i = path.find("site-packages" + os.sep)
-    return path[i + len("site-packages") + 1:] if i >= 0 else path
+    return path[i + len("site-packages") + 1 :] if i >= 0 else path
 
 
 @contextlib.contextmanager

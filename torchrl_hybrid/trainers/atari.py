@@ -7,6 +7,7 @@ The recipes ``recipes/atari_expert.py``, ``recipes/atari_demos.py`` and
 losses, hooks and trainer as Taxi; only the networks (a shared CNN), the env and the
 demo source differ.
 """
+
 from __future__ import annotations
 
 import functools
@@ -29,15 +30,43 @@ from torchrl_hybrid.modules.atari import orthogonal_init_
 from torchrl_hybrid.trainers.evaluation import evaluate_atari, inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import NextStateValueHook, RandomStateHook
 from torchrl_hybrid.trainers.hybrid import get_variant
-from torchrl_hybrid.trainers.run import DemoConfig, LoggerConfig, LossConfig, OptimConfig  # what Atari's settings extend
-from torchrl_hybrid.trainers.run import EnvFamily, Networks, Run, RunConfig, Setup, build_run, finite, train_run
-from torchrl_hybrid.utils.config import MAX_FRAMES, MAX_THREADS, check_float, check_int, check_types, dataclass_from_dict
+from torchrl_hybrid.trainers.run import (
+    DemoConfig,
+    EnvFamily,
+    LoggerConfig,
+    LossConfig,
+    Networks,
+    OptimConfig,
+    Run,
+    RunConfig,
+    Setup,
+    build_run,
+    finite,
+    train_run,
+)  # what Atari's settings extend
+from torchrl_hybrid.utils.config import (
+    MAX_FRAMES,
+    MAX_THREADS,
+    check_float,
+    check_int,
+    check_types,
+    dataclass_from_dict,
+)
 from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT
 
 # evaluate_atari, record_demos and load_expert live with evaluation and the experts; exported here as before
-__all__ = ["AtariConfig", "AtariFamily", "AtariRun", "atari_config", "build_atari", "train_atari", "evaluate_atari",
-           "record_demos", "load_expert"]
+__all__ = [
+    "AtariConfig",
+    "AtariFamily",
+    "AtariRun",
+    "atari_config",
+    "build_atari",
+    "train_atari",
+    "evaluate_atari",
+    "record_demos",
+    "load_expert",
+]
 
 ATARI_VARIANTS = ("hybrid_dual", "hybrid_mlp", "bc_dual", "a2c", "hybrid_true")  # hybrid_true: the oracle diagnostic
 INITS = ("orthogonal", "default")  # AtariConfig.init
@@ -50,10 +79,10 @@ INITS = ("orthogonal", "default")  # AtariConfig.init
 
 @dataclass
 class AtariEnvConfig:
-    game: str = "Pong"   # any ALE game; the paper's: Alien BeamRider Breakout MsPacman Pong Qbert Seaquest SpaceInvaders
-    num_envs: int = 16   # paper: 16 parallel environments; any number works (32, 64 on a GPU machine)
+    game: str = "Pong"  # any ALE game; the paper's: Alien BeamRider Breakout MsPacman Pong Qbert Seaquest SpaceInvaders
+    num_envs: int = 16  # paper: 16 parallel environments; any number works (32, 64 on a GPU machine)
     num_threads: int = 2  # ALE worker threads
-    noop_max: int = 30   # standard: up to 30 no-ops at episode start
+    noop_max: int = 30  # standard: up to 30 no-ops at episode start
     max_episode_frames: int = 108_000
 
     def validate(self) -> None:
@@ -73,7 +102,7 @@ class AtariCollectorConfig:
     # ray: TorchRL's RayCollector, `workers` Ray actors (pip install -e '.[ray]'); both push the
     #      learner's weights to the workers after every batch (synchronous A2C)
     backend: str = "atari"
-    workers: int = 2            # multi_sync / ray: must divide env.num_envs
+    workers: int = 2  # multi_sync / ray: must divide env.num_envs
     address: str | None = None  # ray: the cluster to join (e.g. auto); None starts a local one
     # ray: the share of a GPU each actor asks for, to run its policy there; 0 = the workers run their policy
     # on the CPU (multi_sync workers always do) and each batch is moved to the learner's device
@@ -112,16 +141,16 @@ class AtariDemoConfig(DemoConfig):
 class AtariLossConfig(LossConfig):
     """:class:`~torchrl_hybrid.trainers.run.LossConfig` with the Atari settings."""
 
-    n_steps: int = 5               # A2C rollout length (base code default)
-    critic_coeff: float = 0.5      # base code default
-    entropy_coeff: float = 0.01    # base code default
+    n_steps: int = 5  # A2C rollout length (base code default)
+    critic_coeff: float = 0.5  # base code default
+    entropy_coeff: float = 0.01  # base code default
     idm_action_coeff: float = 1.0  # OURS
     # OURS: 0 on Atari. With the L1 embedding terms of the authors' Taxi code (0.1) the dual model never
     # leaves chance level on Atari: the L1 terms shrink h_a and h_ds towards their trivial minimum (0)
     # faster than the weak early action signal grows them (benchmarks/atari_idm_learning.py: Breakout,
     # 128k frames, loss stays at ln 4 with 0.1, reaches 0.8 / 57 % accuracy by 64k frames with 0).
     idm_embedding_coeff: float = 0.0
-    bc_coeff: float = 1.0          # OURS
+    bc_coeff: float = 1.0  # OURS
     bc_start_frames: int = 100_000  # paper: inferred actions used only after 100,000 (game) frames
 
 
@@ -151,7 +180,7 @@ class AtariConfig(RunConfig):
     frames reach the GPU once per step, as uint8."""
 
     total_frames: int = 2_000_000  # game frames summed over the envs (4 per agent step), as the paper counts
-    rank: int = 8                  # paper: rank 8 for Atari (d_state: the paper's 512 -> 128 linear)
+    rank: int = 8  # paper: rank 8 for Atari (d_state: the paper's 512 -> 128 linear)
     out_dir: str = "outputs/atari"
     threads: int = 2
     # orthogonal = the A2C init of the authors' base code and of SB3 (gain sqrt 2, policy head 0.01);
@@ -178,7 +207,7 @@ class AtariConfig(RunConfig):
         """Agent steps per collected batch (each is 4 game frames)."""
         return self.env.num_envs * self.loss.n_steps
 
-    def validate(self) -> "AtariConfig":
+    def validate(self) -> AtariConfig:
         """Raises ``ValueError`` naming the bad setting and what is allowed (one line), before
         anything is built: every setting's type and range, then the combinations."""
         if self.variant not in ATARI_VARIANTS:
@@ -187,22 +216,29 @@ class AtariConfig(RunConfig):
         if self.compile not in AtariEncoder.COMPILE_MODES:
             raise ValueError(f"compile={self.compile!r}: choose one of {AtariEncoder.COMPILE_MODES}")
         if self.idm_encoder not in IDM_ENCODERS:
-            raise ValueError(f"idm_encoder={self.idm_encoder!r}: choose one of {IDM_ENCODERS} "
-                             "(shared: the paper's one CNN; own: the inverse model's own CNN)")
+            raise ValueError(
+                f"idm_encoder={self.idm_encoder!r}: choose one of {IDM_ENCODERS} "
+                "(shared: the paper's one CNN; own: the inverse model's own CNN)"
+            )
         if self.init not in INITS:
             raise ValueError(f"init={self.init!r}: choose one of {INITS}")
         self.env.validate()
         self.collector.validate()
         self.validate_run()  # the settings every family shares: sizes, seed, frames, demo, loss, optim, logger, ppo
         if self.loss.explore_envs:
-            raise ValueError("loss.explore_envs (explorer env slots) is built for the gymnasium family; Atari's "
-                             "collector does not take it yet")
+            raise ValueError(
+                "loss.explore_envs (explorer env slots) is built for the gymnasium family; Atari's "
+                "collector does not take it yet"
+            )
         if self.rl != "a2c":
-            raise ValueError(f"rl={self.rl!r}: Atari runs the paper's A2C only for now (rl=ppo is built for the "
-                             "gymnasium family)")
+            raise ValueError(
+                f"rl={self.rl!r}: Atari runs the paper's A2C only for now (rl=ppo is built for the gymnasium family)"
+            )
         if self.loss.idm_forward_coeff > 0:
-            raise ValueError("loss.idm_forward_coeff > 0 (the forward head P_f over next states) needs discrete "
-                             "states; Atari frames have none")
+            raise ValueError(
+                "loss.idm_forward_coeff > 0 (the forward head P_f over next states) needs discrete "
+                "states; Atari frames have none"
+            )
         if get_variant(self.variant).bc is not None and not self.demo.path:
             raise ValueError(
                 f"variant {self.variant!r} needs expert demos: record them with recipes/atari_demos.py "
@@ -211,13 +247,16 @@ class AtariConfig(RunConfig):
         if self.collector.backend in WORKER_KINDS and self.env.num_envs % self.collector.workers:
             raise ValueError(f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
         if self.env.num_envs % self.collector.env_groups:
-            raise ValueError(f"collector.env_groups={self.collector.env_groups} must divide "
-                             f"env.num_envs={self.env.num_envs}")
+            raise ValueError(
+                f"collector.env_groups={self.collector.env_groups} must divide env.num_envs={self.env.num_envs}"
+            )
         resolve_device(self.device)
         if self.total_frames < 4 * self.frames_per_batch:
-            raise ValueError(f"total_frames={self.total_frames} (game frames) is less than one batch "
-                             f"(env.num_envs * loss.n_steps = {self.frames_per_batch} agent steps = "
-                             f"{4 * self.frames_per_batch} frames)")
+            raise ValueError(
+                f"total_frames={self.total_frames} (game frames) is less than one batch "
+                f"(env.num_envs * loss.n_steps = {self.frames_per_batch} agent steps = "
+                f"{4 * self.frames_per_batch} frames)"
+            )
         return self
 
 
@@ -227,9 +266,14 @@ def atari_config(d: dict[str, Any]) -> AtariConfig:
 
 
 def _make_env(cfg: AtariConfig, num_envs: int | None = None, seed: int | None = None) -> TransformedEnv:
-    env = AtariEnv(cfg.env.game, num_envs or cfg.env.num_envs, seed=cfg.seed if seed is None else seed,
-                   num_threads=cfg.env.num_threads, noop_max=cfg.env.noop_max,
-                   max_episode_frames=cfg.env.max_episode_frames)
+    env = AtariEnv(
+        cfg.env.game,
+        num_envs or cfg.env.num_envs,
+        seed=cfg.seed if seed is None else seed,
+        num_threads=cfg.env.num_threads,
+        noop_max=cfg.env.noop_max,
+        max_episode_frames=cfg.env.max_episode_frames,
+    )
     # episode score (raw, unclipped game reward) for the learning curve
     return TransformedEnv(env, RewardSum(in_keys=["score"], out_keys=["episode_score"]))
 
@@ -238,9 +282,14 @@ def _worker_env(cfg: AtariConfig, i: int) -> TransformedEnv:
     """The games of collector worker ``i``: its share of ``env.num_envs``, its own seed and
     its share of the ALE threads."""
     workers = cfg.collector.workers
-    env = AtariEnv(cfg.env.game, cfg.env.num_envs // workers, seed=cfg.seed + 1000 * i,
-                   num_threads=max(1, cfg.env.num_threads // workers), noop_max=cfg.env.noop_max,
-                   max_episode_frames=cfg.env.max_episode_frames)
+    env = AtariEnv(
+        cfg.env.game,
+        cfg.env.num_envs // workers,
+        seed=cfg.seed + 1000 * i,
+        num_threads=max(1, cfg.env.num_threads // workers),
+        noop_max=cfg.env.noop_max,
+        max_episode_frames=cfg.env.max_episode_frames,
+    )
     return TransformedEnv(env, RewardSum(in_keys=["score"], out_keys=["episode_score"]))
 
 
@@ -262,13 +311,17 @@ def _check_frame_stacks(demos, path: str, sample: int = 256) -> None:
     # a pair (s, s') of a real trajectory shares 3 of its 4 stacked frames: s'[:-1] == s[1:]
     n = demos.batch_size.numel()
     idx = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:sample]
-    s, s2 = demos["observation"].reshape(n, *demos["observation"].shape[-3:])[idx], \
-        demos["next", "observation"].reshape(n, *demos["observation"].shape[-3:])[idx]
+    s, s2 = (
+        demos["observation"].reshape(n, *demos["observation"].shape[-3:])[idx],
+        demos["next", "observation"].reshape(n, *demos["observation"].shape[-3:])[idx],
+    )
     ok = (s2[:, :-1] == s[:, 1:]).flatten(1).all(-1)
     if not bool(ok.all()):
-        raise ValueError(f"{path}: {int((~ok).sum())} of {len(idx)} sampled pairs (s, s') do not share their stacked "
-                         "frames (s' should drop the oldest frame of s and add one); these are not recorded "
-                         "trajectories (random or damaged frames?)")
+        raise ValueError(
+            f"{path}: {int((~ok).sum())} of {len(idx)} sampled pairs (s, s') do not share their stacked "
+            "frames (s' should drop the oldest frame of s and add one); these are not recorded "
+            "trajectories (random or damaged frames?)"
+        )
 
 
 #: where the inverse model's CNN comes from (AtariConfig.idm_encoder)
@@ -287,8 +340,20 @@ def make_inverse_encoder(cfg: AtariConfig) -> AtariEncoder:
 
 
 # a checkpoint is resumed only by a run that agrees on these (total_frames may grow; threads and device may change)
-_RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "mlp_layers", "init", "idm_encoder", "env", "demo", "loss",
-                "optim")
+_RESUME_KEYS = (
+    "variant",
+    "seed",
+    "rank",
+    "d_state",
+    "d",
+    "mlp_layers",
+    "init",
+    "idm_encoder",
+    "env",
+    "demo",
+    "loss",
+    "optim",
+)
 _RESUME_IGNORE = ("env.num_threads",)
 
 
@@ -304,15 +369,23 @@ class AtariFamily(EnvFamily):
     init_keys = ("env.game",)  # the CNN is the same for every game; the action count and meaning are not
     checkpoints_per_run = 10
     return_key = ("next", "episode_score")
-    loss_extra = MappingProxyType({"value_estimator_kwargs": {"skip_existing": True}})  # values come from NextStateValueHook
+    loss_extra = MappingProxyType(
+        {"value_estimator_kwargs": {"skip_existing": True}}
+    )  # values come from NextStateValueHook
 
     def setup(self, cfg: AtariConfig, variant, device, generator) -> Setup:
         # the games run on the CPU; networks, learner and demos live on `device`
         envs = None
         if cfg.collector.backend == "atari":
-            envs = AtariCollector.make_envs(cfg.env.game, cfg.env.num_envs, groups=cfg.collector.env_groups,
-                                            seed=cfg.seed, num_threads=cfg.env.num_threads, noop_max=cfg.env.noop_max,
-                                            max_episode_frames=cfg.env.max_episode_frames)
+            envs = AtariCollector.make_envs(
+                cfg.env.game,
+                cfg.env.num_envs,
+                groups=cfg.collector.env_groups,
+                seed=cfg.seed,
+                num_threads=cfg.env.num_threads,
+                noop_max=cfg.env.noop_max,
+                max_episode_frames=cfg.env.max_episode_frames,
+            )
             env = base = envs[0]
         elif cfg.collector.backend in WORKER_KINDS:
             env = _make_env(cfg, num_envs=1)  # specs only: the workers step the games
@@ -323,8 +396,12 @@ class AtariFamily(EnvFamily):
         setup = Setup(env, base.n_actions, None, {"base": base, "envs": envs})
         if variant.bc is not None:
             try:
-                setup.demos, meta = load_demos(cfg.demo.path, obs_shape=tuple(base.observation_spec["observation"].shape[1:]),
-                                               obs_dtype=torch.uint8, require_metadata=DEMO_RECIPE)
+                setup.demos, meta = load_demos(
+                    cfg.demo.path,
+                    obs_shape=tuple(base.observation_spec["observation"].shape[1:]),
+                    obs_dtype=torch.uint8,
+                    require_metadata=DEMO_RECIPE,
+                )
                 _check_demo_metadata(meta, cfg, base, cfg.demo.path)
                 _check_frame_stacks(setup.demos, cfg.demo.path)
                 # pairs chain within a trajectory (s'_t == s_{t+1}); sampled, as the frame stacks
@@ -354,23 +431,45 @@ class AtariFamily(EnvFamily):
 
     def collector(self, cfg: AtariConfig, setup: Setup, policy, device, total_steps: int):
         if cfg.collector.backend == "atari":
-            return AtariCollector(setup.extra["envs"], policy, frames_per_batch=cfg.frames_per_batch,
-                                  total_frames=total_steps, device=device, keep_features=cfg.collector.keep_features)
+            return AtariCollector(
+                setup.extra["envs"],
+                policy,
+                frames_per_batch=cfg.frames_per_batch,
+                total_frames=total_steps,
+                device=device,
+                keep_features=cfg.collector.keep_features,
+            )
         if cfg.collector.backend in WORKER_KINDS:
             fns = [functools.partial(_worker_env, cfg, i) for i in range(cfg.collector.workers)]
-            return make_worker_collector(cfg.collector.backend, fns, policy, frames_per_batch=cfg.frames_per_batch,
-                                         total_frames=total_steps, address=cfg.collector.address,
-                                         worker_gpus=cfg.collector.worker_gpus)
-        return Collector(setup.env, policy, frames_per_batch=cfg.frames_per_batch, total_frames=total_steps,
-                         env_device="cpu", policy_device=device, storing_device=device,
-                         auto_register_policy_transforms=False)
+            return make_worker_collector(
+                cfg.collector.backend,
+                fns,
+                policy,
+                frames_per_batch=cfg.frames_per_batch,
+                total_frames=total_steps,
+                address=cfg.collector.address,
+                worker_gpus=cfg.collector.worker_gpus,
+            )
+        return Collector(
+            setup.env,
+            policy,
+            frames_per_batch=cfg.frames_per_batch,
+            total_frames=total_steps,
+            env_device="cpu",
+            policy_device=device,
+            storing_device=device,
+            auto_register_policy_transforms=False,
+        )
 
     def uses_workers(self, cfg: AtariConfig) -> bool:
         return cfg.collector.backend in WORKER_KINDS
 
     def sampler(self, cfg: AtariConfig, setup: Setup):
-        return CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step) if cfg.demo.curriculum \
+        return (
+            CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
+            if cfg.demo.curriculum
             else None
+        )
 
     def register_hooks(self, run: Run) -> None:
         if run.variant.rl:
@@ -391,17 +490,25 @@ class AtariFamily(EnvFamily):
             acc_pairs = demos[torch.randperm(demos.batch_size.numel(), generator=torch.Generator().manual_seed(0))[:n]]
             acc_pairs = acc_pairs.to(run.device)
         # NaN where the demos carry no true actions (the column is always there)
-        return lambda: {IDM_ACCURACY_EXPERT: math.nan if acc_pairs is None
-                        else inverse_model_accuracy(inverse_model, acc_pairs)}
+        return lambda: {
+            IDM_ACCURACY_EXPERT: math.nan if acc_pairs is None else inverse_model_accuracy(inverse_model, acc_pairs)
+        }
 
     def finish(self, run: Run) -> tuple[dict, dict]:
         cfg, base, rows = run.cfg, run.setup.extra["base"], run.metrics.rows
         evaluation = None
         if cfg.logger.eval_episodes > 0:
-            evaluation = evaluate_atari(run.actor, cfg.env.game, base.preprocessing, episodes=cfg.logger.eval_episodes,
-                                        num_envs=min(cfg.env.num_envs, cfg.logger.eval_episodes),
-                                        seed=cfg.seed + 10_000, num_threads=cfg.env.num_threads,
-                                        progress=cfg.logger.progress_bar, device=run.device)
+            evaluation = evaluate_atari(
+                run.actor,
+                cfg.env.game,
+                base.preprocessing,
+                episodes=cfg.logger.eval_episodes,
+                num_envs=min(cfg.env.num_envs, cfg.logger.eval_episodes),
+                seed=cfg.seed + 10_000,
+                num_threads=cfg.env.num_threads,
+                progress=cfg.logger.progress_bar,
+                device=run.device,
+            )
         finished = [r["return_mean"] for r in rows if r["episodes"]]
         results = {
             "head": {"game": cfg.env.game},

@@ -28,6 +28,7 @@ as :func:`train_taxi` with that seed). Action sampling and env resets draw from 
 generator shared by the batch, so a seed's run here is not bit-identical to its
 TorchRL run, only statistically equivalent.
 """
+
 from __future__ import annotations
 
 import csv
@@ -35,8 +36,9 @@ import dataclasses
 import json
 import math
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -71,8 +73,16 @@ class LazyRMSprop:
     embedding tables ``[K * rows, D]`` whose gradients are sparse COO tensors.
     """
 
-    def __init__(self, dense: Sequence[torch.Tensor], sparse: Sequence[tuple[torch.Tensor, int]], K: int,
-                 lr: float, alpha: float, eps: float, max_norm: float | None):
+    def __init__(
+        self,
+        dense: Sequence[torch.Tensor],
+        sparse: Sequence[tuple[torch.Tensor, int]],
+        K: int,
+        lr: float,
+        alpha: float,
+        eps: float,
+        max_norm: float | None,
+    ):
         self.dense, self.sparse, self.K = list(dense), list(sparse), K
         self.lr, self.alpha, self.eps, self.max_norm = lr, alpha, eps, max_norm
         self.v_dense = [torch.zeros_like(p) for p in self.dense]
@@ -247,8 +257,13 @@ class BatchedTabularAgents:
     def optimizer(self) -> LazyRMSprop:
         o = self.cfg.optim
         return LazyRMSprop(
-            list(self.p.values()), [(t, self.S) for t in self.t.values()], self.K,
-            lr=o.lr, alpha=o.alpha, eps=o.eps, max_norm=o.max_grad_norm,
+            list(self.p.values()),
+            [(t, self.S) for t in self.t.values()],
+            self.K,
+            lr=o.lr,
+            alpha=o.alpha,
+            eps=o.eps,
+            max_norm=o.max_grad_norm,
         )
 
 
@@ -295,8 +310,17 @@ def idm_loss_terms(agents: BatchedTabularAgents, s, a, s2, lc) -> dict[str, torc
 
 
 # label options of ExpertBCLoss beyond the paper, which bc_loss_terms does not implement
-_BEYOND_THE_PAPER = ("bc_labels", "bc_confidence", "bc_entropy_floor", "bc_ready_accuracy", "bc_anneal_frames",
-                     "bc_updates", "idm_updates", "bc_prior_floor", "explore_envs")
+_BEYOND_THE_PAPER = (
+    "bc_labels",
+    "bc_confidence",
+    "bc_entropy_floor",
+    "bc_ready_accuracy",
+    "bc_anneal_frames",
+    "bc_updates",
+    "idm_updates",
+    "bc_prior_floor",
+    "explore_envs",
+)
 
 
 def bc_loss_terms(agents: BatchedTabularAgents, es, es2, mask, bc_coeff: float, true_labels=None):
@@ -369,21 +393,29 @@ def train_taxi_batched(
     if cfg.env.backend == "gym":
         raise ValueError("the batched fast path steps the tabular model; env.backend='gym' needs train_taxi")
     if cfg.demo.rho == "curriculum":
-        raise ValueError("the batched fast path supports demo.rho = visited | uniform; use train_taxi for the curriculum")
+        raise ValueError(
+            "the batched fast path supports demo.rho = visited | uniform; use train_taxi for the curriculum"
+        )
     if cfg.loss.idm_forward_coeff > 0:
         raise ValueError("the batched fast path has no forward head; use train_taxi for loss.idm_forward_coeff > 0")
     paper = type(cfg.loss)()
-    beyond = [f"loss.{k}={getattr(cfg.loss, k)!r}" for k in _BEYOND_THE_PAPER if getattr(cfg.loss, k) != getattr(paper, k)]
+    beyond = [
+        f"loss.{k}={getattr(cfg.loss, k)!r}" for k in _BEYOND_THE_PAPER if getattr(cfg.loss, k) != getattr(paper, k)
+    ]
     if cfg.optim.clip != "global":
         beyond.append(f"optim.clip={cfg.optim.clip!r}")
     if beyond:
-        raise ValueError(f"the batched fast path implements the paper's BC term (argmax labels, constant weight) and "
-                         f"one global gradient clip; {', '.join(beyond)} need engine=torchrl")
+        raise ValueError(
+            f"the batched fast path implements the paper's BC term (argmax labels, constant weight) and "
+            f"one global gradient clip; {', '.join(beyond)} need engine=torchrl"
+        )
     o = cfg.optim
     extras = {k: getattr(o, k) for k in ("weight_decay", "momentum", "centered", "maximize") if getattr(o, k)}
     if extras:
-        raise ValueError(f"the batched fast path implements plain RMSprop (lr, alpha, eps); "
-                         f"{', '.join(f'optim.{k}' for k in extras)} (optim {extras}) need engine=torchrl")
+        raise ValueError(
+            f"the batched fast path implements plain RMSprop (lr, alpha, eps); "
+            f"{', '.join(f'optim.{k}' for k in extras)} (optim {extras}) need engine=torchrl"
+        )
     variant = get_variant(cfg.variant)
     model = tabular_model(cfg.env.env_id, cfg.env.kwargs)
     S, A, K, E, T = model.n_states, model.n_actions, len(configs), cfg.env.num_envs, cfg.loss.n_steps
@@ -399,7 +431,7 @@ def train_taxi_batched(
         )
     agents = BatchedTabularAgents(cfg, [c.seed for c in configs], S, A)
     opt = agents.optimizer()
-    gen = torch.Generator().manual_seed(int(sum(c.seed * 1_000_003 ** i for i, c in enumerate(configs)) % 2**62))
+    gen = torch.Generator().manual_seed(int(sum(c.seed * 1_000_003**i for i, c in enumerate(configs)) % 2**62))
     lc = cfg.loss
     kk = torch.arange(K).unsqueeze(-1)
 
@@ -480,8 +512,20 @@ def train_taxi_batched(
         # ---- losses (summed over agents: each agent's gradient is its own) ----
         terms: dict[str, torch.Tensor] = {}
         if variant.rl:
-            terms.update(a2c_terms(agents, b["s"], b["a"], b["r"], b["s2"], b["term"], b["done"],
-                                   lc.gamma, lc.critic_coeff, lc.entropy_coeff))
+            terms.update(
+                a2c_terms(
+                    agents,
+                    b["s"],
+                    b["a"],
+                    b["r"],
+                    b["s2"],
+                    b["term"],
+                    b["done"],
+                    lc.gamma,
+                    lc.critic_coeff,
+                    lc.entropy_coeff,
+                )
+            )
         elif lc.entropy_coeff:
             lp = agents.logits(b["s"].reshape(K, -1)).log_softmax(-1)
             ent = -(lp.exp() * lp).sum(-1).mean(1)
@@ -499,8 +543,16 @@ def train_taxi_batched(
                 idx = (torch.rand(K, cfg.demo.batch_size, generator=gen) * demos.n.unsqueeze(1)).long()
                 mask = torch.ones_like(idx, dtype=torch.bool)
             es, es2 = demos.obs[kk, idx], demos.next[kk, idx]
-            terms.update(bc_loss_terms(agents, es, es2, mask, lc.bc_coeff if bc_on else 0.0,
-                                       demos.act[kk, idx] if variant.bc == "true" else None))
+            terms.update(
+                bc_loss_terms(
+                    agents,
+                    es,
+                    es2,
+                    mask,
+                    lc.bc_coeff if bc_on else 0.0,
+                    demos.act[kk, idx] if variant.bc == "true" else None,
+                )
+            )
         total = sum(v.sum() for n, v in terms.items() if n.startswith("loss_"))
         total.backward()
         terms["grad_norm"] = opt.step()
@@ -549,5 +601,9 @@ def _write_outputs(cfg: TaxiConfig, summary: dict, rows: list[dict], plot: bool)
     if plot:
         from torchrl_hybrid.utils.plotting import plot_learning_curve
 
-        plot_learning_curve(rows, out / "learning_curve.png", title=f"Taxi, {cfg.variant}, seed {cfg.seed}",
-                            optimal=summary["optimal_return"])
+        plot_learning_curve(
+            rows,
+            out / "learning_curve.png",
+            title=f"Taxi, {cfg.variant}, seed {cfg.seed}",
+            optimal=summary["optimal_return"],
+        )

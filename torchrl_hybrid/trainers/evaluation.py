@@ -1,4 +1,5 @@
 """Evaluation: greedy returns (gymnasium envs), game scores (Atari), inverse-model accuracy."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -46,8 +47,17 @@ def evaluate_policy(env: EnvBase, policy, max_steps: int, deterministic: bool = 
 
 @torch.no_grad()
 def evaluate_atari(
-    actor, game: str, preprocessing: dict, *, episodes: int = 16, num_envs: int = 16, seed: int = 0,
-    deterministic: bool = False, num_threads: int = 2, max_steps: int | None = None, progress: bool = False,
+    actor,
+    game: str,
+    preprocessing: dict,
+    *,
+    episodes: int = 16,
+    num_envs: int = 16,
+    seed: int = 0,
+    deterministic: bool = False,
+    num_threads: int = 2,
+    max_steps: int | None = None,
+    progress: bool = False,
     device: str | torch.device | None = None,
 ) -> dict[str, Any]:
     """Plays ``episodes`` whole episodes (all lives) with ``actor`` and returns the
@@ -58,8 +68,14 @@ def evaluate_atari(
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     device = module_device(actor) if device is None else resolve_device(device)
     torch.manual_seed(seed)
-    env = AtariEnv(game, num_envs, seed=seed, num_threads=num_threads, noop_max=preprocessing["noop_max"],
-                   max_episode_frames=preprocessing["max_episode_frames"])
+    env = AtariEnv(
+        game,
+        num_envs,
+        seed=seed,
+        num_threads=num_threads,
+        noop_max=preprocessing["noop_max"],
+        max_episode_frames=preprocessing["max_episode_frames"],
+    )
     env.check_policy(actor)
     td = env.reset()
     running = torch.zeros(num_envs)
@@ -81,8 +97,13 @@ def evaluate_atari(
     bar.close()
     env.close()
     t = torch.tensor(scores)
-    return {"mean": float(t.mean()) if scores else None, "std": float(t.std()) if len(scores) > 1 else None,
-            "scores": scores, "episodes": len(scores), "deterministic": deterministic}
+    return {
+        "mean": float(t.mean()) if scores else None,
+        "std": float(t.std()) if len(scores) > 1 else None,
+        "scores": scores,
+        "episodes": len(scores),
+        "deterministic": deterministic,
+    }
 
 
 @torch.no_grad()
@@ -103,4 +124,5 @@ def _device_of(module) -> torch.device | None:
 def _on_device(policy, device, env_device):
     def run(td: TensorDictBase) -> TensorDictBase:
         return policy(td.to(device)).to(env_device)
+
     return run

@@ -1,12 +1,14 @@
 """TorchRL trainer hooks that add the hybrid agent's behaviour to ``Trainer``."""
+
 from __future__ import annotations
 
 import csv
 import math
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -14,8 +16,20 @@ from torchrl.data import ReplayBuffer
 from torchrl.objectives import LossModule
 from torchrl.trainers import Trainer, TrainerHookBase
 
-__all__ = ["ExpertBatchHook", "CurriculumHook", "DelayedCoefficientHook", "InverseModelReadyHook", "MetricsHook",
-           "MinibatchHook", "NextStateValueHook", "RandomStateHook", "RunStateHook", "LRWarmupHook", "random_state", "set_random_state"]
+__all__ = [
+    "ExpertBatchHook",
+    "CurriculumHook",
+    "DelayedCoefficientHook",
+    "InverseModelReadyHook",
+    "MetricsHook",
+    "MinibatchHook",
+    "NextStateValueHook",
+    "RandomStateHook",
+    "RunStateHook",
+    "LRWarmupHook",
+    "random_state",
+    "set_random_state",
+]
 
 
 def _check_schedulable(loss: LossModule, name: str) -> None:
@@ -24,9 +38,11 @@ def _check_schedulable(loss: LossModule, name: str) -> None:
     if not isinstance(getattr(loss, name, None), torch.Tensor):
         raise ValueError(f"{type(loss).__name__} has no coefficient buffer {name!r}")
     if name not in getattr(type(loss), "_all_schedulable_buffers", ()):
-        raise ValueError(f"{type(loss).__name__}.{name} is not one of its _schedulable_buffers "
-                         f"({sorted(getattr(type(loss), '_all_schedulable_buffers', ()))}); declare it there "
-                         "so that assigning a float updates the buffer in place")
+        raise ValueError(
+            f"{type(loss).__name__}.{name} is not one of its _schedulable_buffers "
+            f"({sorted(getattr(type(loss), '_all_schedulable_buffers', ()))}); declare it there "
+            "so that assigning a float updates the buffer in place"
+        )
 
 
 class ExpertBatchHook(TrainerHookBase):
@@ -129,8 +145,9 @@ class DelayedCoefficientHook(TrainerHookBase):
 
     def at(self, frames: int) -> float:
         """The coefficient after ``frames`` collected frames."""
-        return 0.0 if frames < self.start_frames else _annealed(self.value, frames - self.start_frames,
-                                                                 self.anneal_frames)
+        return (
+            0.0 if frames < self.start_frames else _annealed(self.value, frames - self.start_frames, self.anneal_frames)
+        )
 
     def _set(self, value: float) -> None:
         setattr(self.loss, self.name, value)  # a schedulable buffer: updated in place
@@ -213,8 +230,18 @@ class InverseModelReadyHook(TrainerHookBase):
             switched on (0: it stays at ``value``).
     """
 
-    def __init__(self, loss: LossModule, name: str, value: float, accuracy: float, *, min_frames: int = 0,
-                 smoothing: float = 0.05, accuracy_key: str = "idm_accuracy", anneal_frames: int = 0):
+    def __init__(
+        self,
+        loss: LossModule,
+        name: str,
+        value: float,
+        accuracy: float,
+        *,
+        min_frames: int = 0,
+        smoothing: float = 0.05,
+        accuracy_key: str = "idm_accuracy",
+        anneal_frames: int = 0,
+    ):
         _check_schedulable(loss, name)
         if not 0.0 < accuracy <= 1.0:
             raise ValueError(f"accuracy={accuracy} must be in (0, 1]")
@@ -222,7 +249,11 @@ class InverseModelReadyHook(TrainerHookBase):
             raise ValueError(f"anneal_frames must be >= 0, got {anneal_frames}")
         self.loss, self.name, self.value = loss, name, float(value)
         self.accuracy, self.min_frames, self.smoothing, self.accuracy_key = (
-            float(accuracy), int(min_frames), float(smoothing), accuracy_key)
+            float(accuracy),
+            int(min_frames),
+            float(smoothing),
+            accuracy_key,
+        )
         self.anneal_frames = int(anneal_frames)
         self.running: float | None = None
         self.on_at: int | None = None  # frames when it switched on
@@ -246,8 +277,10 @@ class InverseModelReadyHook(TrainerHookBase):
         return None
 
     def state_dict(self) -> dict[str, Any]:
-        return {"running": -1.0 if self.running is None else self.running,
-                "on_at": -1 if self.on_at is None else self.on_at}
+        return {
+            "running": -1.0 if self.running is None else self.running,
+            "on_at": -1 if self.on_at is None else self.on_at,
+        }
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         running, on_at = float(state_dict["running"]), int(state_dict["on_at"])
@@ -385,11 +418,19 @@ class MetricsHook(TrainerHookBase):
                 reader = csv.DictReader(f)
                 fieldnames = reader.fieldnames
                 for r in reader:
-                    rows.append({k: (int(v) if k in ("frames", "episodes") else float(v)) for k, v in r.items()
-                                 if v not in ("", None)})
+                    rows.append(
+                        {
+                            k: (int(v) if k in ("frames", "episodes") else float(v))
+                            for k, v in r.items()
+                            if v not in ("", None)
+                        }
+                    )
         if len(rows) < n:
-            warnings.warn(f"{self.csv_path} holds {len(rows)} rows but the checkpoint was taken after {n}; "
-                          "the resumed curve misses the rest", stacklevel=2)
+            warnings.warn(
+                f"{self.csv_path} holds {len(rows)} rows but the checkpoint was taken after {n}; "
+                "the resumed curve misses the rest",
+                stacklevel=2,
+            )
         self.rows = rows[:n]
         self._fieldnames = fieldnames if self.rows else None
         if self.rows:  # drop rows logged after the checkpoint: they will be logged again
@@ -479,8 +520,10 @@ class MinibatchHook(TrainerHookBase):
         batch = self.value_estimator(batch)
         self._flat, self._step = batch.reshape(-1), 0
         if self._flat.shape[0] % self.minibatches:
-            raise ValueError(f"a batch of {self._flat.shape[0]} transitions does not split into {self.minibatches} "
-                             "minibatches; choose ppo.minibatches dividing env.num_envs * loss.n_steps")
+            raise ValueError(
+                f"a batch of {self._flat.shape[0]} transitions does not split into {self.minibatches} "
+                "minibatches; choose ppo.minibatches dividing env.num_envs * loss.n_steps"
+            )
         return batch
 
     def __call__(self, batch: TensorDictBase) -> TensorDictBase:
@@ -490,7 +533,7 @@ class MinibatchHook(TrainerHookBase):
             self._perm = torch.randperm(n, device=self._flat.device)
         self._step += 1
         size = n // self.minibatches
-        return self._flat[self._perm[k * size:(k + 1) * size]]
+        return self._flat[self._perm[k * size : (k + 1) * size]]
 
     def state_dict(self) -> dict[str, Any]:
         return {}
@@ -525,9 +568,12 @@ def set_random_state(state: dict[str, Any]) -> None:
     if torch.cuda.is_available() and torch.cuda.device_count() == len(cuda):
         torch.cuda.set_rng_state_all(cuda)
     else:
-        warnings.warn(f"the checkpoint holds the random state of {len(cuda)} CUDA device(s), this machine has "
-                      f"{torch.cuda.device_count() if torch.cuda.is_available() else 0}; only the CPU generator is "
-                      "restored, so the resumed run is not bit-exact", stacklevel=2)
+        warnings.warn(
+            f"the checkpoint holds the random state of {len(cuda)} CUDA device(s), this machine has "
+            f"{torch.cuda.device_count() if torch.cuda.is_available() else 0}; only the CPU generator is "
+            "restored, so the resumed run is not bit-exact",
+            stacklevel=2,
+        )
 
 
 class RandomStateHook(TrainerHookBase):
@@ -566,9 +612,11 @@ class RunStateHook(TrainerHookBase):
 
     def state_dict(self) -> dict[str, Any]:
         carrier = getattr(self.collector, "_carrier", None)
-        return {**random_state(),
-                "carrier": None if carrier is None else carrier.to_dict(),
-                "envs": {str(i): e.run_state() for i, e in enumerate(self.envs)}}
+        return {
+            **random_state(),
+            "carrier": None if carrier is None else carrier.to_dict(),
+            "envs": {str(i): e.run_state() for i, e in enumerate(self.envs)},
+        }
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         set_random_state(state_dict)

@@ -1,17 +1,17 @@
 """The one pipeline behind every agent variant: losses and trainer assembly."""
+
 from __future__ import annotations
 
 import sys
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
-from torchrl.objectives import A2CLoss, ClipPPOLoss, ValueEstimators
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torchrl.checkpoint import Checkpoint, CheckpointError
+from torchrl.objectives import A2CLoss, ClipPPOLoss, ValueEstimators
 from torchrl.trainers import OptimizationStepper, Trainer
 
 from torchrl_hybrid.modules.inverse_dynamics import InverseDynamicsModel
@@ -24,8 +24,19 @@ from torchrl_hybrid.objectives import (
 )
 from torchrl_hybrid.utils.config import flatten_dict
 
-__all__ = ["CLIP_MODES", "RL_BASES", "ClippedOptimizationStepper", "Variant", "attach_demonstrations", "param_groups", "VARIANTS", "get_variant",
-           "make_hybrid_loss", "make_trainer", "resume_trainer"]
+__all__ = [
+    "CLIP_MODES",
+    "RL_BASES",
+    "ClippedOptimizationStepper",
+    "Variant",
+    "attach_demonstrations",
+    "param_groups",
+    "VARIANTS",
+    "get_variant",
+    "make_hybrid_loss",
+    "make_trainer",
+    "resume_trainer",
+]
 
 
 @dataclass(frozen=True)
@@ -54,15 +65,26 @@ RL_BASES = ("a2c", "ppo")
 VARIANTS: dict[str, Variant] = {
     v.name: v
     for v in (
-        Variant("hybrid_dual", True, "inferred", "dual", "A2C + BC on actions inferred by the dual model (the paper's agent)"),
+        Variant(
+            "hybrid_dual",
+            True,
+            "inferred",
+            "dual",
+            "A2C + BC on actions inferred by the dual model (the paper's agent)",
+        ),
         Variant("hybrid_mlp", True, "inferred", "mlp", "A2C + BC on actions inferred by the MLP inverse model"),
         Variant("bc_dual", False, "inferred", "dual", "BC on actions inferred by the dual model, no RL signal"),
         Variant("bc_mlp", False, "inferred", "mlp", "BC on actions inferred by the MLP model, no RL signal"),
         Variant("il", False, "true", None, "BC on the TRUE expert actions (imitation learning upper bound)"),
         # a diagnostic, never a way to train with real demos: the demos keep the expert's true actions
         # only so that this arm can show how much any inverse model could give (oracle labels)
-        Variant("hybrid_true", True, "true", None,
-                "DIAGNOSTIC: A2C + BC on the expert's TRUE actions, the upper bound of any inverse model's labels"),
+        Variant(
+            "hybrid_true",
+            True,
+            "true",
+            None,
+            "DIAGNOSTIC: A2C + BC on the expert's TRUE actions, the upper bound of any inverse model's labels",
+        ),
         Variant("a2c", True, None, None, "plain A2C, ignores the demonstrations"),
     )
 }
@@ -106,9 +128,7 @@ def make_hybrid_loss(
     run by a :class:`~torchrl_hybrid.trainers.hooks.MinibatchHook`.
     """
     if (variant.inverse_model is None) != (inverse_model is None):
-        raise ValueError(
-            f"variant {variant.name!r} {'needs' if variant.inverse_model else 'takes no'} inverse model"
-        )
+        raise ValueError(f"variant {variant.name!r} {'needs' if variant.inverse_model else 'takes no'} inverse model")
     if rl not in RL_BASES:
         raise ValueError(f"rl={rl!r}: choose one of {RL_BASES}")
     rl_loss = None
@@ -123,8 +143,9 @@ def make_hybrid_loss(
             loss_critic_type="l2",
             normalize_advantage=ppo["normalize_advantage"],
         )
-        rl_loss.make_value_estimator(ValueEstimators.GAE, gamma=gamma, lmbda=ppo["gae_lambda"],
-                                     **(value_estimator_kwargs or {}))
+        rl_loss.make_value_estimator(
+            ValueEstimators.GAE, gamma=gamma, lmbda=ppo["gae_lambda"], **(value_estimator_kwargs or {})
+        )
     elif variant.rl:
         rl_loss = A2CLoss(
             actor,
@@ -149,14 +170,30 @@ def make_hybrid_loss(
             idm_loss = InverseDynamicsLoss(inverse_model, action_coeff=idm_action_coeff)
     bc_loss = None
     if variant.bc == "inferred":
-        bc_loss = ExpertBCLoss(actor, inverse_model, bc_coeff=bc_coeff, labels=bc_labels, confidence=bc_confidence,
-                               entropy_floor=bc_entropy_floor, prior_floor=bc_prior_floor)
+        bc_loss = ExpertBCLoss(
+            actor,
+            inverse_model,
+            bc_coeff=bc_coeff,
+            labels=bc_labels,
+            confidence=bc_confidence,
+            entropy_floor=bc_entropy_floor,
+            prior_floor=bc_prior_floor,
+        )
     elif variant.bc == "true":
-        inferred_only = {k: v for k, v in (("bc_labels", bc_labels != "argmax"), ("bc_confidence", bc_confidence > 0),
-                                            ("bc_prior_floor", bc_prior_floor > 0)) if v}
+        inferred_only = {
+            k: v
+            for k, v in (
+                ("bc_labels", bc_labels != "argmax"),
+                ("bc_confidence", bc_confidence > 0),
+                ("bc_prior_floor", bc_prior_floor > 0),
+            )
+            if v
+        }
         if inferred_only:
-            raise ValueError(f"variant {variant.name!r} clones the expert's true actions; {sorted(inferred_only)} "
-                             "change how inferred labels are read from the inverse model and have no meaning here")
+            raise ValueError(
+                f"variant {variant.name!r} clones the expert's true actions; {sorted(inferred_only)} "
+                "change how inferred labels are read from the inverse model and have no meaning here"
+            )
         bc_loss = ExpertBCLoss(actor, None, bc_coeff=bc_coeff, entropy_floor=bc_entropy_floor)
         bc_loss.set_keys(action=expert_action_key)
     return HybridLoss(rl_loss, idm_loss, bc_loss)
@@ -198,8 +235,15 @@ class ClippedOptimizationStepper(OptimizationStepper):
         expert_batches: a callable giving a fresh expert batch (needed with ``bc_updates``).
     """
 
-    def __init__(self, max_norm: float | None, clip: str = "global", *, bc_updates: int = 0, idm_updates: int = 0,
-                 expert_batches=None):
+    def __init__(
+        self,
+        max_norm: float | None,
+        clip: str = "global",
+        *,
+        bc_updates: int = 0,
+        idm_updates: int = 0,
+        expert_batches=None,
+    ):
         if clip not in CLIP_MODES:
             raise ValueError(f"clip={clip!r}: choose one of {CLIP_MODES}")
         if bc_updates < 0 or idm_updates < 0:
@@ -384,16 +428,29 @@ def attach_demonstrations(
     if bc_ready_accuracy > 0:
         if loss.inverse_dynamics_loss is None:
             raise ValueError("bc_ready_accuracy needs an inverse model (it measures the inverse model's accuracy)")
-        InverseModelReadyHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_ready_accuracy, min_frames=bc_start_frames,
-                              anneal_frames=bc_anneal_frames).register(trainer)
+        InverseModelReadyHook(
+            loss.bc_loss,
+            "bc_coeff",
+            bc_coeff,
+            bc_ready_accuracy,
+            min_frames=bc_start_frames,
+            anneal_frames=bc_anneal_frames,
+        ).register(trainer)
     elif bc_start_frames > 0 or bc_anneal_frames > 0:
-        DelayedCoefficientHook(loss.bc_loss, "bc_coeff", bc_coeff, bc_start_frames,
-                               anneal_frames=bc_anneal_frames).register(trainer)
+        DelayedCoefficientHook(
+            loss.bc_loss, "bc_coeff", bc_coeff, bc_start_frames, anneal_frames=bc_anneal_frames
+        ).register(trainer)
     return buffer
 
 
-def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str, ...],
-                   ignore: tuple[str, ...] = (), defaults: dict | None = None) -> int:
+def resume_trainer(
+    trainer: Trainer,
+    out: Path,
+    settings: dict,
+    keys: tuple[str, ...],
+    ignore: tuple[str, ...] = (),
+    defaults: dict | None = None,
+) -> int:
     """Loads ``out/checkpoint`` into ``trainer`` after checking that the run that wrote
     it (``out/config.json``) agrees with ``settings`` on every entry under ``keys``
     (dotted names in ``ignore`` may differ: thread counts, the device). A setting the
@@ -407,8 +464,10 @@ def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str,
         print(f"resume: no checkpoint in {out}; starting from scratch", file=sys.stderr)
         return 0
     if not saved_path.exists():
-        raise ValueError(f"resume: {ckpt} has no {saved_path.name} beside it, so its settings cannot be checked; "
-                         "pass overwrite=true to start again there, or choose another out_dir")
+        raise ValueError(
+            f"resume: {ckpt} has no {saved_path.name} beside it, so its settings cannot be checked; "
+            "pass overwrite=true to start again there, or choose another out_dir"
+        )
     saved = flatten_dict({k: v for k, v in read_json(saved_path, "run config").items() if k in keys})
     now = flatten_dict({k: v for k, v in settings.items() if k in keys})
     for k, v in flatten_dict({k: v for k, v in (defaults or {}).items() if k in keys}).items():
@@ -416,8 +475,10 @@ def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str,
     diff = sorted(k for k in set(saved) | set(now) if k not in ignore and saved.get(k) != now.get(k))
     if diff:
         was = ", ".join(f"{k}: {saved.get(k)!r} -> {now.get(k)!r}" for k in diff)
-        raise ValueError(f"resume: the checkpoint in {out} was written with other settings for {diff} ({was}; "
-                         f"see {saved_path}); use another out_dir or the same settings")
+        raise ValueError(
+            f"resume: the checkpoint in {out} was written with other settings for {diff} ({was}; "
+            f"see {saved_path}); use another out_dir or the same settings"
+        )
     if (ckpt / "manifest.json").exists():  # TorchRL's checkpoint format: the list of its components
         read_json(ckpt / "manifest.json", "checkpoint manifest")
     check_memmap_folder(ckpt)
@@ -429,14 +490,19 @@ def resume_trainer(trainer: Trainer, out: Path, settings: dict, keys: tuple[str,
         missing = set(getattr(err.result, "missing", None) or ())
         if not missing or not missing <= {"trainer_module.random_state"} or getattr(err.result, "incompatible", None):
             raise
-        warnings.warn(f"resume: {ckpt} was written before checkpoints held the random state; the run goes on "
-                      "from its weights, optimiser and samplers, but not bit-exactly", stacklevel=2)
+        warnings.warn(
+            f"resume: {ckpt} was written before checkpoints held the random state; the run goes on "
+            "from its weights, optimiser and samplers, but not bit-exactly",
+            stacklevel=2,
+        )
         trainer.load_from_file(ckpt, strict="ignore")
     frames = int(trainer.collected_frames)
     total = settings.get("total_frames")
     if isinstance(total, int) and frames >= total:  # nothing left to train: finishing would rewrite the run's files
-        raise ValueError(f"resume=true: the run in {out} is already at {frames:,} frames; raise total_frames "
-                         f"(now {total:,}) to train further")
+        raise ValueError(
+            f"resume=true: the run in {out} is already at {frames:,} frames; raise total_frames "
+            f"(now {total:,}) to train further"
+        )
     print(f"resume: continuing from {frames:,} frames ({ckpt})", file=sys.stderr)
 
     def start_bar_at_resumed_frames():  # TorchRL's Trainer.train() opens its bar at 0 even when resumed

@@ -17,21 +17,23 @@ The gymnasium family (Taxi, FrozenLake, CartPole, ...) is
 Process-wide settings (torch threads, log levels, progress-bar refresh) are not
 changed here: the recipes set them (:func:`~torchrl_hybrid.utils.process.configure_process`).
 """
+
 from __future__ import annotations
 
 import dataclasses
 import json
 import math
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping, Optional
+from typing import Any
 
 import torch
 from torchrl.record.loggers import get_logger
-from torchrl.trainers.algorithms.configs.utils import RMSpropConfig
 from torchrl.trainers import UpdateWeights
+from torchrl.trainers.algorithms.configs.utils import RMSpropConfig
 
 from torchrl_hybrid.collectors.workers import BatchToDeviceHook, worker_weights_getter
 from torchrl_hybrid.data import EXPERT_ACTION_KEY
@@ -51,8 +53,25 @@ from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.files import check_resume_target, prepare_out_dir
 from torchrl_hybrid.utils.plotting import plot_learning_curve
 
-__all__ = ["RunConfig", "LossConfig", "OptimConfig", "LoggerConfig", "DemoConfig", "PPOConfig", "LOGGERS", "BC_LABELS", "EnvFamily", "Setup", "Networks", "Run",
-           "build_run", "train_run", "finish_run", "make_inverse_model", "load_init_weights"]
+__all__ = [
+    "RunConfig",
+    "LossConfig",
+    "OptimConfig",
+    "LoggerConfig",
+    "DemoConfig",
+    "PPOConfig",
+    "LOGGERS",
+    "BC_LABELS",
+    "EnvFamily",
+    "Setup",
+    "Networks",
+    "Run",
+    "build_run",
+    "train_run",
+    "finish_run",
+    "make_inverse_model",
+    "load_init_weights",
+]
 
 LOGGERS = ("csv", "tensorboard", "wandb", "none")
 LOGGER_PACKAGES = {"tensorboard": "tensorboard", "wandb": "wandb"}  # the package (= pyproject extra) each one needs
@@ -70,21 +89,21 @@ class LossConfig:
     is silent, the authors' Taxi code). Atari's config overrides those the paper sets otherwise
     (``AtariLossConfig``)."""
 
-    n_steps: int = 2                  # paper: 2-step A2C on Taxi (rollout length; TD(1) return bootstrapped at its end)
-    gamma: float = 0.99               # authors' code
-    critic_coeff: float = 0.2         # authors' code: value loss weight (L2)
-    entropy_coeff: float = 0.5        # authors' code: entropy bonus weight (the BC variants keep it too)
-    idm_action_coeff: float = 2.0     # authors' code: weight of -log P_i(a|s,s')
+    n_steps: int = 2  # paper: 2-step A2C on Taxi (rollout length; TD(1) return bootstrapped at its end)
+    gamma: float = 0.99  # authors' code
+    critic_coeff: float = 0.2  # authors' code: value loss weight (L2)
+    entropy_coeff: float = 0.5  # authors' code: entropy bonus weight (the BC variants keep it too)
+    idm_action_coeff: float = 2.0  # authors' code: weight of -log P_i(a|s,s')
     idm_embedding_coeff: float = 0.1  # authors' code: weight of the L1 embedding terms (averaged over dims: OURS)
-    idm_forward_coeff: float = 0.0    # authors' code: 0 (the paper trains L_act); > 0 adds -log P_f(s'|s,a)
-                                      # (discrete states only)
-    bc_coeff: float = 2.0             # authors' README runs: weight of the BC term
-    bc_start_frames: int = 0          # switch the BC term on after this many frames (paper's Atari: 100,000)
+    idm_forward_coeff: float = 0.0  # authors' code: 0 (the paper trains L_act); > 0 adds -log P_f(s'|s,a)
+    # (discrete states only)
+    bc_coeff: float = 2.0  # authors' README runs: weight of the BC term
+    bc_start_frames: int = 0  # switch the BC term on after this many frames (paper's Atari: 100,000)
     # Label handling (options beyond the paper; the paper's agent is the default):
-    bc_labels: str = "argmax"         # argmax = clone argmax_a P_i (the paper) | soft = cross-entropy to P_i, so
-                                      # look-alike actions share probability instead of one being erased
-    bc_confidence: float = 0.0         # clone only expert pairs whose max_a P_i >= this (0: every pair)
-    bc_entropy_floor: float = 0.0      # add bc_coeff * relu(floor - H(pi)) on expert states (0: off)
+    bc_labels: str = "argmax"  # argmax = clone argmax_a P_i (the paper) | soft = cross-entropy to P_i, so
+    # look-alike actions share probability instead of one being erased
+    bc_confidence: float = 0.0  # clone only expert pairs whose max_a P_i >= this (0: every pair)
+    bc_entropy_floor: float = 0.0  # add bc_coeff * relu(floor - H(pi)) on expert states (0: off)
     # > 0: labels corrected for the agent's own policy, P_i(a|s,s') / max(pi(a|s), floor) renormalised: the
     # inverse model learns the agent's policy as its prior, so its labels echo the agent (OURS; 0 = the paper)
     bc_prior_floor: float = 0.0
@@ -108,12 +127,22 @@ class LossConfig:
         check_types(self, "loss.")
         check_int("loss.n_steps", self.n_steps, 1)
         check_float("loss.gamma", self.gamma, 0.0, 1.0)
-        _need(self.gamma >= MIN_DISCOUNT, f"loss.gamma={self.gamma} must be >= {MIN_DISCOUNT:g}: TorchRL's return "
-              "estimators fail on discounts below 1e-7 (for a short-sighted agent use e.g. 0.01)")
+        _need(
+            self.gamma >= MIN_DISCOUNT,
+            f"loss.gamma={self.gamma} must be >= {MIN_DISCOUNT:g}: TorchRL's return "
+            "estimators fail on discounts below 1e-7 (for a short-sighted agent use e.g. 0.01)",
+        )
         # loss weights: a negative one turns its term into one to maximise; above MAX_COEFF float32 losses
         # and their squared gradients overflow
-        for name in ("critic_coeff", "entropy_coeff", "idm_action_coeff", "idm_embedding_coeff", "idm_forward_coeff",
-                     "bc_coeff", "bc_entropy_floor"):
+        for name in (
+            "critic_coeff",
+            "entropy_coeff",
+            "idm_action_coeff",
+            "idm_embedding_coeff",
+            "idm_forward_coeff",
+            "bc_coeff",
+            "bc_entropy_floor",
+        ):
             check_float(f"loss.{name}", getattr(self, name), 0.0)
         _need(self.bc_labels in BC_LABELS, f"loss.bc_labels must be one of {BC_LABELS}, got {self.bc_labels!r}")
         check_float("loss.bc_confidence", self.bc_confidence, 0.0, 1.0, hi_open=True)
@@ -126,9 +155,22 @@ class LossConfig:
 
     def loss_kwargs(self) -> dict[str, Any]:
         """The keyword arguments of :func:`~torchrl_hybrid.trainers.hybrid.make_hybrid_loss`."""
-        return {k: getattr(self, k) for k in (
-            "gamma", "critic_coeff", "entropy_coeff", "idm_action_coeff", "idm_embedding_coeff", "idm_forward_coeff",
-            "bc_coeff", "bc_labels", "bc_confidence", "bc_entropy_floor", "bc_prior_floor")}
+        return {
+            k: getattr(self, k)
+            for k in (
+                "gamma",
+                "critic_coeff",
+                "entropy_coeff",
+                "idm_action_coeff",
+                "idm_embedding_coeff",
+                "idm_forward_coeff",
+                "bc_coeff",
+                "bc_labels",
+                "bc_confidence",
+                "bc_entropy_floor",
+                "bc_prior_floor",
+            )
+        }
 
 
 @dataclass
@@ -137,7 +179,7 @@ class OptimConfig(RMSpropConfig):
     TorchRL's own ``RMSpropConfig`` (torchrl.trainers.algorithms.configs), every
     ``torch.optim.RMSprop`` argument, with the authors' defaults, plus the clipping settings."""
 
-    lr: float = 1e-3            # RMSprop, authors' code
+    lr: float = 1e-3  # RMSprop, authors' code
     eps: float = 1e-5
     alpha: float = 0.99
     max_grad_norm: float = 0.5  # gradient-norm clip, authors' code
@@ -148,12 +190,13 @@ class OptimConfig(RMSpropConfig):
     clip: str = "global"
     # lr rises linearly from 0 over this many frames (LRWarmupHook); None = auto: 100 updates' frames with
     # init_from (a fresh RMSprop's first steps on trained weights are up to 10x lr), else 0 (the authors': none)
-    warmup_frames: Optional[int] = None
+    warmup_frames: int | None = None
 
     def make(self, params) -> torch.optim.Optimizer:
         """The optimiser over ``params`` (e.g. :func:`~torchrl_hybrid.trainers.hybrid.param_groups`)."""
-        kwargs = {f.name: getattr(self, f.name) for f in dataclasses.fields(RMSpropConfig)
-                  if not f.name.startswith("_")}
+        kwargs = {
+            f.name: getattr(self, f.name) for f in dataclasses.fields(RMSpropConfig) if not f.name.startswith("_")
+        }
         return torch.optim.RMSprop(params, **kwargs)
 
     def validate(self) -> None:
@@ -169,9 +212,11 @@ class OptimConfig(RMSpropConfig):
         if self.warmup_frames is not None:
             check_int("optim.warmup_frames", self.warmup_frames, 0, MAX_FRAMES)
         _need(self.clip in CLIPS, f"optim.clip must be one of {CLIPS}, got {self.clip!r}")
-        _need(self._target_ == "torch.optim.RMSprop",
-              f"optim._target_={self._target_!r}: the agent's optimiser is torch.optim.RMSprop (the paper's); "
-              "for another one build the run with build_run and replace run.trainer.optimizer")
+        _need(
+            self._target_ == "torch.optim.RMSprop",
+            f"optim._target_={self._target_!r}: the agent's optimiser is torch.optim.RMSprop (the paper's); "
+            "for another one build the run with build_run and replace run.trainer.optimizer",
+        )
 
 
 @dataclass
@@ -180,7 +225,7 @@ class PPOConfig:
     in ``minibatches`` minibatches (OURS: the paper's RL base is A2C; these are the usual PPO values)."""
 
     epochs: int = 4
-    minibatches: int = 4         # must divide env.num_envs * loss.n_steps
+    minibatches: int = 4  # must divide env.num_envs * loss.n_steps
     clip_epsilon: float = 0.2
     gae_lambda: float = 0.95
     normalize_advantage: bool = True
@@ -199,7 +244,7 @@ class DemoConfig:
     family adds its own demo settings."""
 
     path: str | None = None  # a folder of recorded demos (save_demos / recipes/atari_demos.py)
-    batch_size: int = 32     # expert pairs per optimisation step
+    batch_size: int = 32  # expert pairs per optimisation step
     curriculum_k0: int = 10  # curriculum rho: first k steps of each trajectory at the start ...
     curriculum_frames_per_step: int = 8000  # ... one step more every this many frames
 
@@ -209,8 +254,11 @@ class DemoConfig:
         check_types(self, "demo.")
         check_int("demo.batch_size", self.batch_size, 0)
         if variant is not None:
-            _need(self.batch_size >= 1, f"demo.batch_size={self.batch_size}: variant {variant} clones the expert from "
-                  "batches of this many demo pairs, so it must be >= 1 (variant=a2c trains without demos)")
+            _need(
+                self.batch_size >= 1,
+                f"demo.batch_size={self.batch_size}: variant {variant} clones the expert from "
+                "batches of this many demo pairs, so it must be >= 1 (variant=a2c trains without demos)",
+            )
         check_int("demo.curriculum_k0", self.curriculum_k0, 1)
         check_int("demo.curriculum_frames_per_step", self.curriculum_frames_per_step, 1, MAX_FRAMES)
 
@@ -225,15 +273,17 @@ class LoggerConfig:
     backend: str = "csv"
     log_every_frames: int = 2000  # frames between learning-curve rows
     progress_bar: bool = True
-    checkpoint: bool = True       # TorchRL trainer checkpoints in out_dir/checkpoint (what resume=true reads)
+    checkpoint: bool = True  # TorchRL trainer checkpoints in out_dir/checkpoint (what resume=true reads)
 
     def validate(self) -> None:
         check_types(self, "logger.")
         _need(self.backend in LOGGERS, f"logger.backend must be one of {LOGGERS}, got {self.backend!r}")
         package = LOGGER_PACKAGES.get(self.backend)
-        _need(package is None or _has_package(package),
-              f"logger.backend={self.backend} needs the {package} package, which is not installed: "
-              f"pip install -e '.[{package}]' (or logger.backend=csv)")
+        _need(
+            package is None or _has_package(package),
+            f"logger.backend={self.backend} needs the {package} package, which is not installed: "
+            f"pip install -e '.[{package}]' (or logger.backend=csv)",
+        )
         check_int("logger.log_every_frames", self.log_every_frames, 1, MAX_FRAMES)
 
 
@@ -246,11 +296,11 @@ class RunConfig:
     # the RL loss of the variants that have one: a2c (the paper's) | ppo (ClipPPOLoss + GAE, the ppo settings)
     rl: str = "a2c"
     seed: int = 0
-    total_frames: int = 80_000    # frames to train (summed over the parallel envs)
-    rank: int = 2                 # rank R of the dual tensor model
-    d_state: int = 128            # d_s, size of the state embedding h_s (paper: 128)
-    d: int = 128                  # d, size of h_a and h_ds (paper: 128); also the MLP baseline's hidden width
-    mlp_layers: int = 2           # hidden layers of the MLP inverse model (paper: 2)
+    total_frames: int = 80_000  # frames to train (summed over the parallel envs)
+    rank: int = 2  # rank R of the dual tensor model
+    d_state: int = 128  # d_s, size of the state embedding h_s (paper: 128)
+    d: int = 128  # d, size of h_a and h_ds (paper: 128); also the MLP baseline's hidden width
+    mlp_layers: int = 2  # hidden layers of the MLP inverse model (paper: 2)
     # where metrics.csv, summary.json, learning_curve.png, model.pt and checkpoint/ go; a folder that
     # holds a run is refused unless resume or overwrite (the recipes default to a fresh timestamped one)
     out_dir: str = "outputs/run"
@@ -298,12 +348,16 @@ class RunConfig:
 
         _need(self.rl in RL_BASES, f"rl must be one of {RL_BASES}, got {self.rl!r}")
         if self.rl == "ppo":
-            _need(self.loss.gamma * self.ppo.gae_lambda >= MIN_DISCOUNT,
-                  f"loss.gamma * ppo.gae_lambda = {self.loss.gamma * self.ppo.gae_lambda:g} must be >= {MIN_DISCOUNT:g}: "
-                  "TorchRL's GAE fails below 1e-7; raise ppo.gae_lambda")
-            _need(self.frames_per_batch % self.ppo.minibatches == 0,
-                  f"ppo.minibatches={self.ppo.minibatches} must divide a batch of {self.frames_per_batch} transitions "
-                  "(env.num_envs * loss.n_steps)")
+            _need(
+                self.loss.gamma * self.ppo.gae_lambda >= MIN_DISCOUNT,
+                f"loss.gamma * ppo.gae_lambda = {self.loss.gamma * self.ppo.gae_lambda:g} must be >= {MIN_DISCOUNT:g}: "
+                "TorchRL's GAE fails below 1e-7; raise ppo.gae_lambda",
+            )
+            _need(
+                self.frames_per_batch % self.ppo.minibatches == 0,
+                f"ppo.minibatches={self.ppo.minibatches} must divide a batch of {self.frames_per_batch} transitions "
+                "(env.num_envs * loss.n_steps)",
+            )
 
     @property
     def optim_steps_per_batch(self) -> int:
@@ -352,7 +406,7 @@ class EnvFamily:
     override the methods that raise here."""
 
     name = "env"
-    resume_keys: tuple[str, ...] = ()   # a checkpoint is resumed only by a run agreeing on these
+    resume_keys: tuple[str, ...] = ()  # a checkpoint is resumed only by a run agreeing on these
     resume_ignore: tuple[str, ...] = ()  # dotted names that may differ on resume (thread counts)
     init_keys: tuple[str, ...] = ()  # dotted names an init_from model.pt must agree on (the env, the networks' shapes)
     checkpoints_per_run = 4
@@ -387,17 +441,17 @@ class EnvFamily:
         """rho: the expert buffer's sampler (``None``: uniform)."""
         return None
 
-    def register_hooks(self, run: "Run") -> None:
+    def register_hooks(self, run: Run) -> None:
         """Hooks of this family, registered before the learning curve's."""
 
-    def register_late_hooks(self, run: "Run") -> None:
+    def register_late_hooks(self, run: Run) -> None:
         """Hooks registered after the learning curve's (e.g. the envs' run state)."""
 
-    def evaluator(self, run: "Run") -> Callable[[], dict[str, float]]:
+    def evaluator(self, run: Run) -> Callable[[], dict[str, float]]:
         """Extra learning-curve columns, computed every ``logger.log_every_frames``."""
         return dict
 
-    def finish(self, run: "Run") -> tuple[dict, dict]:
+    def finish(self, run: Run) -> tuple[dict, dict]:
         """After training: the summary's family entries and ``model.pt``'s extra entries."""
         return {}, {}
 
@@ -407,7 +461,7 @@ class EnvFamily:
     def title(self, cfg) -> str:
         return f"{cfg.variant}, seed {cfg.seed}"
 
-    def plot_kwargs(self, run: "Run", summary: dict) -> dict:
+    def plot_kwargs(self, run: Run, summary: dict) -> dict:
         return {}
 
     def close_envs(self, setup: Setup) -> None:
@@ -454,8 +508,17 @@ class Run:
         return self.setup.demos
 
 
-def make_inverse_model(kind: str | None, encoder: torch.nn.Module, n_actions: int, *, d_state: int = 128,
-                       d: int = 128, rank: int = 2, mlp_layers: int = 2, n_states: int | None = None):
+def make_inverse_model(
+    kind: str | None,
+    encoder: torch.nn.Module,
+    n_actions: int,
+    *,
+    d_state: int = 128,
+    d: int = 128,
+    rank: int = 2,
+    mlp_layers: int = 2,
+    n_states: int | None = None,
+):
     """The variant's inverse model: ``"dual"`` (the paper's low-rank tensor model; with
     ``n_states`` also its forward head), ``"mlp"`` (the MLP baseline) or ``None``."""
     if kind == "dual":
@@ -473,30 +536,44 @@ def _dotted(d: Mapping, name: str, default=None):
     return d
 
 
-def load_init_weights(path: str | Path, cfg, family: EnvFamily, actor: torch.nn.Module, critic: torch.nn.Module,
-                      inverse_model: torch.nn.Module | None = None) -> int:
+def load_init_weights(
+    path: str | Path,
+    cfg,
+    family: EnvFamily,
+    actor: torch.nn.Module,
+    critic: torch.nn.Module,
+    inverse_model: torch.nn.Module | None = None,
+) -> int:
     """Warm start (``init_from``): loads the actor's and critic's weights, and the inverse
     model's where this run and the saved one both have one of the same shape, from a
     ``model.pt`` written by :func:`finish_run` for the same env (``family.init_keys`` must
     agree). The optimiser is not touched. Returns the frames those weights had seen."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"init_from={str(path)!r}: no such file; pass the model.pt of a finished run "
-                                "(e.g. results/atari/expert_pong_10m/model.pt)")
+        raise FileNotFoundError(
+            f"init_from={str(path)!r}: no such file; pass the model.pt of a finished run "
+            "(e.g. results/atari/expert_pong_10m/model.pt)"
+        )
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # truncated, random bytes, another format
-        raise ValueError(f"init_from={path} is not a model.pt written by this pipeline ({type(err).__name__}: {err})") from None
+        raise ValueError(
+            f"init_from={path} is not a model.pt written by this pipeline ({type(err).__name__}: {err})"
+        ) from None
     need = ("actor", "critic", "config")
     if not isinstance(ckpt, dict) or any(k not in ckpt for k in need):
         have = sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt).__name__
-        raise ValueError(f"init_from={path} is not a model.pt written by this pipeline: it needs {list(need)}, it has {have}")
+        raise ValueError(
+            f"init_from={path} is not a model.pt written by this pipeline: it needs {list(need)}, it has {have}"
+        )
     saved, now = ckpt["config"], dataclasses.asdict(cfg)
     diff = [k for k in family.init_keys if _dotted(saved, k) != _dotted(now, k)]
     if diff:
         was = ", ".join(f"{k}: {_dotted(saved, k)!r} (saved) vs {_dotted(now, k)!r} (this run)" for k in diff)
-        raise ValueError(f"init_from={path} was trained with other settings for {diff} ({was}); "
-                         "warm-start from a run of the same env and networks")
+        raise ValueError(
+            f"init_from={path} was trained with other settings for {diff} ({was}); "
+            "warm-start from a run of the same env and networks"
+        )
     for name, module in (("actor", actor), ("critic", critic)):
         try:
             module.load_state_dict(ckpt[name])
@@ -507,8 +584,10 @@ def load_init_weights(path: str | Path, cfg, family: EnvFamily, actor: torch.nn.
         try:
             inverse_model.load_state_dict(saved_idm)
         except RuntimeError as err:
-            raise ValueError(f"init_from={path}: its inverse model does not fit this run's (another variant, rank or "
-                             f"idm_encoder?) ({err})") from None
+            raise ValueError(
+                f"init_from={path}: its inverse model does not fit this run's (another variant, rank or "
+                f"idm_encoder?) ({err})"
+            ) from None
     frames = ckpt.get("total_frames_seen")  # older model.pt files: the frames their run was asked for
     return int(frames if frames is not None else saved.get("total_frames", 0))
 
@@ -529,12 +608,27 @@ def build_run(cfg, family: EnvFamily) -> Run:
         setup = family.setup(cfg, variant, device, torch.Generator().manual_seed(cfg.seed))
         nets = family.networks(cfg, variant, setup)
         n_states = setup.extra.get("n_states") if cfg.loss.idm_forward_coeff > 0 else None
-        inverse_model = make_inverse_model(variant.inverse_model, nets.inverse_encoder() if variant.inverse_model else None,
-                                           setup.n_actions, d_state=cfg.d_state, d=cfg.d, rank=cfg.rank,
-                                           mlp_layers=cfg.mlp_layers, n_states=n_states)
-        loss = make_hybrid_loss(variant, nets.actor, nets.critic, inverse_model, expert_action_key=EXPERT_ACTION_KEY,
-                                rl=cfg.rl, ppo=dataclasses.asdict(cfg.ppo), **cfg.loss.loss_kwargs(),
-                                **family.loss_extra).to(device)
+        inverse_model = make_inverse_model(
+            variant.inverse_model,
+            nets.inverse_encoder() if variant.inverse_model else None,
+            setup.n_actions,
+            d_state=cfg.d_state,
+            d=cfg.d,
+            rank=cfg.rank,
+            mlp_layers=cfg.mlp_layers,
+            n_states=n_states,
+        )
+        loss = make_hybrid_loss(
+            variant,
+            nets.actor,
+            nets.critic,
+            inverse_model,
+            expert_action_key=EXPERT_ACTION_KEY,
+            rl=cfg.rl,
+            ppo=dataclasses.asdict(cfg.ppo),
+            **cfg.loss.loss_kwargs(),
+            **family.loss_extra,
+        ).to(device)
         # the loss moves the networks it trains; the collection policy may hold more (Atari's writes the
         # critic's state_value, which a variant without the RL loss never trains)
         for net in (nets.actor, nets.critic, nets.collection_policy):
@@ -548,18 +642,45 @@ def build_run(cfg, family: EnvFamily) -> Run:
         collector = family.collector(cfg, setup, policy, device, -(-cfg.total_frames // skip))
         logger = None
         if cfg.logger.backend != "none":
-            logger = get_logger(cfg.logger.backend, logger_name=str(out / "logs"), experiment_name=family.experiment_name(cfg))
+            logger = get_logger(
+                cfg.logger.backend, logger_name=str(out / "logs"), experiment_name=family.experiment_name(cfg)
+            )
         frames_per_batch = cfg.frames_per_batch * skip
         trainer = make_trainer(
-            collector=collector, loss=loss, optimizer=optimizer, total_frames=cfg.total_frames,
-            clip_norm=cfg.optim.max_grad_norm, logger=logger, progress_bar=cfg.logger.progress_bar,
+            collector=collector,
+            loss=loss,
+            optimizer=optimizer,
+            total_frames=cfg.total_frames,
+            clip_norm=cfg.optim.max_grad_norm,
+            logger=logger,
+            progress_bar=cfg.logger.progress_bar,
             save_trainer_file=out / "checkpoint" if cfg.logger.checkpoint else None,
             save_trainer_interval=max(cfg.total_frames // family.checkpoints_per_run, frames_per_batch),
-            clip=cfg.optim.clip, frame_skip=skip, bc_updates=cfg.loss.bc_updates, idm_updates=cfg.loss.idm_updates,
+            clip=cfg.optim.clip,
+            frame_skip=skip,
+            bc_updates=cfg.loss.bc_updates,
+            idm_updates=cfg.loss.idm_updates,
             optim_steps_per_batch=cfg.optim_steps_per_batch,
         )
-        run = Run(cfg, family, variant, setup, trainer, collector, nets.actor, nets.critic, nets.encoder, inverse_model,
-                  policy, loss, None, out, device, 0, lock)
+        run = Run(
+            cfg,
+            family,
+            variant,
+            setup,
+            trainer,
+            collector,
+            nets.actor,
+            nets.critic,
+            nets.encoder,
+            inverse_model,
+            policy,
+            loss,
+            None,
+            out,
+            device,
+            0,
+            lock,
+        )
         if cfg.init_from:
             run.init_frames = load_init_weights(cfg.init_from, cfg, family, nets.actor, nets.critic, inverse_model)
         warmup = cfg.optim.warmup_frames
@@ -573,25 +694,45 @@ def build_run(cfg, family: EnvFamily) -> Run:
             MinibatchHook(loss.rl_loss.value_estimator, cfg.ppo.minibatches).register(trainer)
         family.register_hooks(run)
         if family.uses_workers(cfg):  # the workers' policy copies get the learner's weights after every batch
-            UpdateWeights(collector, update_weights_interval=1,
-                          policy_weights_getter=worker_weights_getter(policy)).register(trainer)
+            UpdateWeights(
+                collector, update_weights_interval=1, policy_weights_getter=worker_weights_getter(policy)
+            ).register(trainer)
         if variant.bc is not None:
             lc = cfg.loss
-            expert_buffer = attach_demonstrations(trainer, loss, setup.demos, sampler=family.sampler(cfg, setup),
-                                  batch_size=cfg.demo.batch_size, bc_coeff=lc.bc_coeff, bc_start_frames=lc.bc_start_frames,
-                                  bc_ready_accuracy=lc.bc_ready_accuracy, bc_anneal_frames=lc.bc_anneal_frames,
-                                  include_expert_actions=variant.bc == "true",
-                                  device=device)
+            expert_buffer = attach_demonstrations(
+                trainer,
+                loss,
+                setup.demos,
+                sampler=family.sampler(cfg, setup),
+                batch_size=cfg.demo.batch_size,
+                bc_coeff=lc.bc_coeff,
+                bc_start_frames=lc.bc_start_frames,
+                bc_ready_accuracy=lc.bc_ready_accuracy,
+                bc_anneal_frames=lc.bc_anneal_frames,
+                include_expert_actions=variant.bc == "true",
+                device=device,
+            )
             # loss.bc_updates: the extra BC-only updates draw their expert batches from the same buffer
             trainer.optimization_stepper.expert_batches = lambda: expert_buffer.sample(cfg.demo.batch_size)
-        run.metrics = MetricsHook(out / "metrics.csv", cfg.logger.log_every_frames, family.evaluator(run),
-                                  pbar_keys=family.pbar_keys, return_key=family.return_key)
+        run.metrics = MetricsHook(
+            out / "metrics.csv",
+            cfg.logger.log_every_frames,
+            family.evaluator(run),
+            pbar_keys=family.pbar_keys,
+            return_key=family.return_key,
+        )
         run.metrics.register(trainer)
         family.register_late_hooks(run)
         settings = dataclasses.asdict(cfg)
         if cfg.resume:
-            run.resumed_from = resume_trainer(trainer, out, settings, family.resume_keys, family.resume_ignore,
-                                              defaults=dataclasses.asdict(type(cfg)()))
+            run.resumed_from = resume_trainer(
+                trainer,
+                out,
+                settings,
+                family.resume_keys,
+                family.resume_ignore,
+                defaults=dataclasses.asdict(type(cfg)()),
+            )
         (out / "config.json").write_text(json.dumps(settings, indent=2))
     except BaseException:  # a run that could not be built closes what it opened and does not keep out_dir
         try:
@@ -615,22 +756,37 @@ def finish_run(run: Run) -> dict[str, Any]:
         results, model_extra = run.family.finish(run)
         train_time = max(run.train_time_s, 1e-9)
         summary = {
-            **results.pop("head", {}), "variant": cfg.variant, "seed": cfg.seed, "frames": int(trainer.collected_frames),
+            **results.pop("head", {}),
+            "variant": cfg.variant,
+            "seed": cfg.seed,
+            "frames": int(trainer.collected_frames),
             **results,
             "resumed_from_frames": run.resumed_from,
             # the weights' whole history: init_from's frames, then this run's
-            "init_from": cfg.init_from or None, "total_frames_seen": run.init_frames + int(trainer.collected_frames),
+            "init_from": cfg.init_from or None,
+            "total_frames_seen": run.init_frames + int(trainer.collected_frames),
             "train_time_s": round(train_time, 2),  # this piece only, when resumed
             "frames_per_s": round((trainer.collected_frames - run.resumed_from) / train_time, 1),
             "config": dataclasses.asdict(cfg),
         }
         (run.out / "summary.json").write_text(json.dumps(summary, indent=2))
-        torch.save({"actor": run.actor.state_dict(), "critic": run.critic.state_dict(),
-                    "inverse_model": None if run.inverse_model is None else run.inverse_model.state_dict(),
-                    **model_extra, "config": dataclasses.asdict(cfg),
-                    "total_frames_seen": run.init_frames + int(trainer.collected_frames)}, run.out / "model.pt")
-        plot_learning_curve(run.metrics.rows, run.out / "learning_curve.png", title=run.family.title(cfg),
-                            **run.family.plot_kwargs(run, summary))
+        torch.save(
+            {
+                "actor": run.actor.state_dict(),
+                "critic": run.critic.state_dict(),
+                "inverse_model": None if run.inverse_model is None else run.inverse_model.state_dict(),
+                **model_extra,
+                "config": dataclasses.asdict(cfg),
+                "total_frames_seen": run.init_frames + int(trainer.collected_frames),
+            },
+            run.out / "model.pt",
+        )
+        plot_learning_curve(
+            run.metrics.rows,
+            run.out / "learning_curve.png",
+            title=run.family.title(cfg),
+            **run.family.plot_kwargs(run, summary),
+        )
     finally:
         close_run(run)
     return summary

@@ -13,6 +13,7 @@ as the state-only demos.
 :func:`train_taxi`; tests and notebooks call :func:`train_taxi` directly with a
 :class:`TaxiConfig`.
 """
+
 from __future__ import annotations
 
 import functools
@@ -61,11 +62,33 @@ from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
 
 # a checkpoint is resumed only by a run that agrees on these (total_frames may grow)
-_RESUME_KEYS = ("variant", "seed", "rank", "d_state", "d", "mlp_layers", "identity_embedding", "env", "demo", "loss",
-                "optim", "encoder", "rl", "ppo")
+_RESUME_KEYS = (
+    "variant",
+    "seed",
+    "rank",
+    "d_state",
+    "d",
+    "mlp_layers",
+    "identity_embedding",
+    "env",
+    "demo",
+    "loss",
+    "optim",
+    "encoder",
+    "rl",
+    "ppo",
+)
 
-__all__ = ["TaxiConfig", "GymFamily", "config_from_dict", "make_taxi_demos", "build_taxi", "train_taxi",
-           "record_episodes", "load_gym_expert"]
+__all__ = [
+    "TaxiConfig",
+    "GymFamily",
+    "config_from_dict",
+    "make_taxi_demos",
+    "build_taxi",
+    "train_taxi",
+    "record_episodes",
+    "load_gym_expert",
+]
 
 RHOS = ("visited", "uniform", "curriculum")
 EPSILON_MODES = ("non_optimal", "authors")
@@ -97,8 +120,10 @@ class EnvConfig:
             try:
                 gymnasium.spec(self.env_id)
             except gymnasium.error.Error as err:
-                raise ValueError(f"env.env_id={self.env_id}: {_one_line(err)} (gymnasium.pprint_registry() lists the "
-                                 "registered ids, e.g. Taxi-v4, FrozenLake-v1, CartPole-v1)") from None
+                raise ValueError(
+                    f"env.env_id={self.env_id}: {_one_line(err)} (gymnasium.pprint_registry() lists the "
+                    "registered ids, e.g. Taxi-v4, FrozenLake-v1, CartPole-v1)"
+                ) from None
         _need(self.backend in BACKENDS, f"env.backend must be one of {BACKENDS}, got {self.backend!r}")
         check_int("env.num_envs", self.num_envs, 1)
         check_int("env.max_episode_steps", self.max_episode_steps, 1, MAX_FRAMES)
@@ -112,8 +137,8 @@ class GymDemoConfig(DemoConfig):
     form: str = "per_state"
     num_trajectories: int = 100
     save_path: str | None = None  # write the demos this run uses (after noise) to this folder
-    eta: float = 0.0              # fraction of states missing from the demos, in [0, 1)
-    epsilon: float = 0.0          # fraction of demo transitions made by a non-optimal action, in [0, 1)
+    eta: float = 0.0  # fraction of states missing from the demos, in [0, 1)
+    epsilon: float = 0.0  # fraction of demo transitions made by a non-optimal action, in [0, 1)
     # non_optimal = exactly floor(epsilon * pairs) pairs redrawn with a non-optimal action (this project's
     # spec); authors = each pair redrawn w.p. epsilon with a uniformly random move, as the authors' Taxi code
     epsilon_mode: str = "non_optimal"
@@ -140,8 +165,10 @@ class GymDemoConfig(DemoConfig):
         check_int("demo.num_trajectories", self.num_trajectories, 1)
         for name in ("eta", "epsilon"):
             check_float(f"demo.{name}", getattr(self, name), 0.0, 1.0, hi_open=True)
-        _need(self.epsilon_mode in EPSILON_MODES,
-              f"demo.epsilon_mode must be one of {EPSILON_MODES}, got {self.epsilon_mode!r}")
+        _need(
+            self.epsilon_mode in EPSILON_MODES,
+            f"demo.epsilon_mode must be one of {EPSILON_MODES}, got {self.epsilon_mode!r}",
+        )
         # 0 would make the built-in expert indifferent to everything after the next reward
         check_float("demo.expert_gamma", self.expert_gamma, 0.0, 1.0, lo_open=True)
         _need(self.rho in RHOS, f"demo.rho must be one of {RHOS}, got {self.rho!r}")
@@ -149,7 +176,7 @@ class GymDemoConfig(DemoConfig):
 
 @dataclass
 class GymLoggerConfig(LoggerConfig):
-    eval_episodes: int = 100        # greedy episodes of every learning-curve row (eval_return)
+    eval_episodes: int = 100  # greedy episodes of every learning-curve row (eval_return)
     final_eval_episodes: int = 300  # greedy episodes of the final evaluation (summary.json's final_return)
 
     def validate(self) -> None:
@@ -164,10 +191,10 @@ class CollectorConfig:
     split evenly between the workers; the learner's weights reach them after every batch
     (TorchRL's UpdateWeights hook), so A2C stays synchronous."""
 
-    kind: str = "single"         # single: TorchRL's Collector in this process | multi_sync: MultiSyncCollector,
-                                 # `workers` processes | ray: RayCollector, `workers` Ray actors (pip install -e '.[ray]')
-    workers: int = 2             # multi_sync / ray: env.num_envs is split evenly between them
-    address: str | None = None   # ray: the cluster to join (e.g. auto); None starts a local one with `workers` CPUs
+    kind: str = "single"  # single: TorchRL's Collector in this process | multi_sync: MultiSyncCollector,
+    # `workers` processes | ray: RayCollector, `workers` Ray actors (pip install -e '.[ray]')
+    workers: int = 2  # multi_sync / ray: env.num_envs is split evenly between them
+    address: str | None = None  # ray: the cluster to join (e.g. auto); None starts a local one with `workers` CPUs
     # ray: the share of a GPU each actor asks for, to run its policy there; 0 = the workers run their policy
     # on the CPU (multi_sync workers always do) and each batch is moved to the learner's device
     worker_gpus: float = 0.0
@@ -218,34 +245,44 @@ class TaxiConfig(RunConfig):
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
 
-    def validate(self) -> "TaxiConfig":
+    def validate(self) -> TaxiConfig:
         """Raises ``ValueError`` naming the bad setting and what is allowed (one line), before
         anything is built: every setting's type and range, then the combinations."""
         get_variant(self.variant)
         check_types(self, recurse=False)
         _need(self.engine in ENGINES, f"engine must be one of {ENGINES}, got {self.engine!r}")
         if self.engine == "batched" and self.resume:
-            raise ValueError("resume=true needs engine=torchrl (the batched engine writes no checkpoint); "
-                             "drop resume=true, or pass engine=torchrl")
+            raise ValueError(
+                "resume=true needs engine=torchrl (the batched engine writes no checkpoint); "
+                "drop resume=true, or pass engine=torchrl"
+            )
         if self.engine == "batched" and self.init_from:
             raise ValueError("init_from needs engine=torchrl (the batched engine starts from fresh weights)")
         if resolve_device(self.device).type != "cpu" and self.engine == "batched" and self.device != "auto":
-            raise ValueError(f"engine=batched runs on the CPU only; use device=cpu (or device=auto), "
-                             f"or engine=torchrl for device={self.device}")
+            raise ValueError(
+                f"engine=batched runs on the CPU only; use device=cpu (or device=auto), "
+                f"or engine=torchrl for device={self.device}"
+            )
         self.env.validate()
         self.collector.validate()
         self.encoder.validate()
         self.validate_run()  # the settings every family shares: sizes, seed, frames, demo, loss, optim, logger, ppo
         if self.collector.kind != "single":
-            _need(self.env.num_envs % self.collector.workers == 0,
-                  f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}")
+            _need(
+                self.env.num_envs % self.collector.workers == 0,
+                f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}",
+            )
             _need(self.engine == "torchrl", "collector.kind=multi_sync|ray needs engine=torchrl")
         envs_per_worker = self.env.num_envs // (self.collector.workers if self.collector.kind != "single" else 1)
-        _need(self.loss.explore_envs < envs_per_worker,
-              f"loss.explore_envs={self.loss.explore_envs} must leave at least one env following the policy in each "
-              f"collector ({envs_per_worker} envs each)")
-        _need(self.rl == "a2c" or self.engine == "torchrl", f"rl={self.rl} needs engine=torchrl (the batched engine is "
-              "the paper's A2C)")
+        _need(
+            self.loss.explore_envs < envs_per_worker,
+            f"loss.explore_envs={self.loss.explore_envs} must leave at least one env following the policy in each "
+            f"collector ({envs_per_worker} envs each)",
+        )
+        _need(
+            self.rl == "a2c" or self.engine == "torchrl",
+            f"rl={self.rl} needs engine=torchrl (the batched engine is the paper's A2C)",
+        )
         _need(
             self.total_frames >= self.frames_per_batch,
             f"total_frames={self.total_frames} is less than one batch (env.num_envs * loss.n_steps = {self.frames_per_batch})",
@@ -280,8 +317,9 @@ def given_demos(cfg: TaxiConfig, obs_shape, obs_dtype):
     elif cfg.demo.minari:
         from torchrl_hybrid.data.minari import load_minari_demos
 
-        demos, meta = load_minari_demos(cfg.demo.minari, datasets_path=cfg.demo.minari_path, obs_shape=obs_shape,
-                                        obs_dtype=obs_dtype)
+        demos, meta = load_minari_demos(
+            cfg.demo.minari, datasets_path=cfg.demo.minari_path, obs_shape=obs_shape, obs_dtype=obs_dtype
+        )
         source = f"demo.minari={cfg.demo.minari}"
     else:
         return None
@@ -301,10 +339,14 @@ def given_demos(cfg: TaxiConfig, obs_shape, obs_dtype):
 def demo_fix(cfg: TaxiConfig) -> str:
     """What to do about demos a check refuses (the end of its message)."""
     if cfg.demo.minari:
-        return ("recreate the Minari dataset from the env's own episodes (minari.DataCollector), or record demos "
-                "with demo.save_path=<folder>")
-    return ("re-record them: a run of recipes/train.py with demo.save_path=<folder> writes the demos it uses "
-            "(the built-in expert's, or demo.expert=<model.pt>'s where the env has no table P)")
+        return (
+            "recreate the Minari dataset from the env's own episodes (minari.DataCollector), or record demos "
+            "with demo.save_path=<folder>"
+        )
+    return (
+        "re-record them: a run of recipes/train.py with demo.save_path=<folder> writes the demos it uses "
+        "(the built-in expert's, or demo.expert=<model.pt>'s where the env has no table P)"
+    )
 
 
 def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Generator):
@@ -312,29 +354,41 @@ def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Gener
     policy, optimal = optimal_policy(model, cfg.demo.expert_gamma)
     ends = episode_ends(model, policy, cfg.env.max_episode_steps)
     if not bool(ends.all()):
-        raise ValueError(f"the built-in expert (value iteration, demo.expert_gamma={cfg.demo.expert_gamma}) does not end "
-                         f"an episode within env.max_episode_steps={cfg.env.max_episode_steps} from "
-                         f"{int((~ends).sum())} of {len(ends)} start states of {cfg.env.env_id}; raise "
-                         "env.max_episode_steps, or use demo.expert_gamma below 1 (0.99) so that it takes "
-                         "the shortest way to the goal")
+        raise ValueError(
+            f"the built-in expert (value iteration, demo.expert_gamma={cfg.demo.expert_gamma}) does not end "
+            f"an episode within env.max_episode_steps={cfg.env.max_episode_steps} from "
+            f"{int((~ends).sum())} of {len(ends)} start states of {cfg.env.env_id}; raise "
+            "env.max_episode_steps, or use demo.expert_gamma below 1 (0.99) so that it takes "
+            "the shortest way to the goal"
+        )
     demos = given_demos(cfg, obs_shape=(), obs_dtype=torch.long)
     source = cfg.demo.path or cfg.demo.minari
     if demos is not None:
         # every pair (s, s') must be a transition of the table P, and (s, a, s') where the true actions are stored
-        check_tabular_transitions(demos, model, source, demo_fix(cfg), env_id=cfg.env.env_id,
-                                  action_key=EXPERT_ACTION_KEY)
+        check_tabular_transitions(
+            demos, model, source, demo_fix(cfg), env_id=cfg.env.env_id, action_key=EXPERT_ACTION_KEY
+        )
     elif cfg.demo.form == "per_state":
         demos = tabular_state_pairs(model, policy)
     else:
         demos = tabular_trajectories(model, policy, cfg.demo.num_trajectories, cfg.env.max_episode_steps, generator)
     if cfg.demo.eta or cfg.demo.epsilon:
         demos = apply_demo_noise(
-            demos, model, optimal, eta=cfg.demo.eta, epsilon=cfg.demo.epsilon,
-            epsilon_mode=cfg.demo.epsilon_mode, generator=generator,
+            demos,
+            model,
+            optimal,
+            eta=cfg.demo.eta,
+            epsilon=cfg.demo.epsilon,
+            epsilon_mode=cfg.demo.epsilon_mode,
+            generator=generator,
         )
     if cfg.demo.save_path:
-        save_demos(demos, cfg.demo.save_path, {"env_id": cfg.env.env_id, "eta": cfg.demo.eta, "epsilon": cfg.demo.epsilon},
-                   overwrite=cfg.overwrite)
+        save_demos(
+            demos,
+            cfg.demo.save_path,
+            {"env_id": cfg.env.env_id, "eta": cfg.demo.eta, "epsilon": cfg.demo.epsilon},
+            overwrite=cfg.overwrite,
+        )
     return demos, policy
 
 
@@ -345,11 +399,15 @@ def tabular_model(env_id: str, env_kwargs: dict | None = None) -> TabularModel:
     try:
         model = TabularModel.from_gym(env_id, **dict(env_kwargs or {}))
     except ValueError:
-        raise ValueError(f"env.env_id={env_id}: this pipeline's built-in expert needs a toy-text env with a "
-                         "transition table P (Taxi, CliffWalking, FrozenLake); env.backend does not change that") from None
+        raise ValueError(
+            f"env.env_id={env_id}: this pipeline's built-in expert needs a toy-text env with a "
+            "transition table P (Taxi, CliffWalking, FrozenLake); env.backend does not change that"
+        ) from None
     if not model.deterministic:
-        raise ValueError(f"env.env_id={env_id}: its transitions are random (e.g. is_slippery); the built-in "
-                         "expert and the expected-return evaluation need a deterministic env")
+        raise ValueError(
+            f"env.env_id={env_id}: its transitions are random (e.g. is_slippery); the built-in "
+            "expert and the expected-return evaluation need a deterministic env"
+        )
     return model
 
 
@@ -358,22 +416,30 @@ def _check_vector_config(cfg: TaxiConfig, needs_demos: bool = True) -> None:
     for vector observations, with what to use instead."""
     env = cfg.env.env_id
     if cfg.env.backend == "tabular":
-        raise ValueError(f"env.backend=tabular needs a toy-text env with a table P; {env} has vector observations: "
-                         "use env.backend=vector (or auto)")
+        raise ValueError(
+            f"env.backend=tabular needs a toy-text env with a table P; {env} has vector observations: "
+            "use env.backend=vector (or auto)"
+        )
     if cfg.demo.rho == "visited":
-        raise ValueError(f"demo.rho=visited matches expert pairs to visited discrete states; {env} has vector "
-                         "observations: use demo.rho=uniform or demo.rho=curriculum")
+        raise ValueError(
+            f"demo.rho=visited matches expert pairs to visited discrete states; {env} has vector "
+            "observations: use demo.rho=uniform or demo.rho=curriculum"
+        )
     if cfg.demo.eta or cfg.demo.epsilon:
-        raise ValueError("demo.eta and demo.epsilon edit demos with the env's table P; for an env without one, "
-                         "record noisy demos yourself and pass demo.path")
+        raise ValueError(
+            "demo.eta and demo.epsilon edit demos with the env's table P; for an env without one, "
+            "record noisy demos yourself and pass demo.path"
+        )
     if cfg.loss.idm_forward_coeff > 0:
         raise ValueError("loss.idm_forward_coeff > 0 (the forward head P_f over next states) needs discrete states")
     if cfg.engine == "batched":
         raise ValueError("engine=batched runs toy-text envs only; use engine=torchrl for vector observations")
     if needs_demos and not cfg.demo.expert and not cfg.demo.path and not cfg.demo.minari:
-        raise ValueError(f"{env} has no table P, so there is no built-in expert: train one with this pipeline "
-                         f"(variant=a2c out_dir=<dir>) and pass demo.expert=<dir>/model.pt, or pass recorded demos "
-                         "with demo.path=<folder> or a local Minari dataset with demo.minari=<dataset id>")
+        raise ValueError(
+            f"{env} has no table P, so there is no built-in expert: train one with this pipeline "
+            f"(variant=a2c out_dir=<dir>) and pass demo.expert=<dir>/model.pt, or pass recorded demos "
+            "with demo.path=<folder> or a local Minari dataset with demo.minari=<dataset id>"
+        )
 
 
 def make_gym_demos(cfg: TaxiConfig, expert_actor, size: int):
@@ -384,20 +450,35 @@ def make_gym_demos(cfg: TaxiConfig, expert_actor, size: int):
     demos = given_demos(cfg, obs_shape=(size,), obs_dtype=torch.float32)
     if demos is not None:
         return demos
-    demos, returns = record_episodes(cfg.env.env_id, expert_actor, cfg.demo.num_trajectories,
-                                     cfg.env.max_episode_steps, seed=cfg.seed + 30_000, env_kwargs=cfg.env.kwargs,
-                                     deterministic=cfg.demo.deterministic)
+    demos, returns = record_episodes(
+        cfg.env.env_id,
+        expert_actor,
+        cfg.demo.num_trajectories,
+        cfg.env.max_episode_steps,
+        seed=cfg.seed + 30_000,
+        env_kwargs=cfg.env.kwargs,
+        deterministic=cfg.demo.deterministic,
+    )
     if cfg.demo.save_path:
-        save_demos(demos, cfg.demo.save_path, {"env_id": cfg.env.env_id, "expert": cfg.demo.expert,
-                                               "returns": returns.tolist()}, overwrite=cfg.overwrite)
+        save_demos(
+            demos,
+            cfg.demo.save_path,
+            {"env_id": cfg.env.env_id, "expert": cfg.demo.expert, "returns": returns.tolist()},
+            overwrite=cfg.overwrite,
+        )
     return demos
 
 
 def _worker_env(cfg: TaxiConfig, i: int):
     """The envs of collector worker ``i``: its share of ``env.num_envs``, its own seed."""
-    return make_toy_text_env(cfg.env.env_id, cfg.env.num_envs // cfg.collector.workers, backend=cfg.env.backend,
-                             max_episode_steps=cfg.env.max_episode_steps, seed=cfg.seed + 1000 * i,
-                             env_kwargs=cfg.env.kwargs)
+    return make_toy_text_env(
+        cfg.env.env_id,
+        cfg.env.num_envs // cfg.collector.workers,
+        backend=cfg.env.backend,
+        max_episode_steps=cfg.env.max_episode_steps,
+        seed=cfg.seed + 1000 * i,
+        env_kwargs=cfg.env.kwargs,
+    )
 
 
 def make_collector(cfg: TaxiConfig, env, actor, device):
@@ -409,13 +490,20 @@ def make_collector(cfg: TaxiConfig, env, actor, device):
     kinds are synchronous (each batch is collected with the weights of the last update)."""
     common = dict(frames_per_batch=cfg.frames_per_batch, total_frames=cfg.total_frames)
     if cfg.collector.kind == "single":
-        return Collector(env, actor, env_device="cpu", policy_device=device, storing_device=device,
-                         auto_register_policy_transforms=False,  # a feed-forward policy needs none
-                         **common)
+        return Collector(
+            env,
+            actor,
+            env_device="cpu",
+            policy_device=device,
+            storing_device=device,
+            auto_register_policy_transforms=False,  # a feed-forward policy needs none
+            **common,
+        )
     env.close()  # the workers build their own envs
     fns = [functools.partial(_worker_env, cfg, i) for i in range(cfg.collector.workers)]
-    return make_worker_collector(cfg.collector.kind, fns, actor, address=cfg.collector.address,
-                                 worker_gpus=cfg.collector.worker_gpus, **common)
+    return make_worker_collector(
+        cfg.collector.kind, fns, actor, address=cfg.collector.address, worker_gpus=cfg.collector.worker_gpus, **common
+    )
 
 
 class GymFamily(EnvFamily):
@@ -434,8 +522,10 @@ class GymFamily(EnvFamily):
         try:
             kind, size, A = observation_kind(cfg.env.env_id, cfg.env.kwargs)
         except (gymnasium.error.Error, ModuleNotFoundError, TypeError) as err:  # unknown id or module, bad kwargs
-            raise ValueError(f"env.env_id={cfg.env.env_id} with env.kwargs={cfg.env.kwargs}: gymnasium cannot make "
-                             f"it ({type(err).__name__}: {_one_line(err)}); check the id and its keyword arguments") from None
+            raise ValueError(
+                f"env.env_id={cfg.env.env_id} with env.kwargs={cfg.env.kwargs}: gymnasium cannot make "
+                f"it ({type(err).__name__}: {_one_line(err)}); check the id and its keyword arguments"
+            ) from None
         extra = {"kind": kind, "size": size, "model": None, "expert": None, "expert_actor": None}
         demos = None
         if kind == "discrete":
@@ -453,8 +543,14 @@ class GymFamily(EnvFamily):
 
     @staticmethod
     def make_env(cfg: TaxiConfig, num_envs: int, seed: int):
-        return make_toy_text_env(cfg.env.env_id, num_envs, backend=cfg.env.backend,
-                                 max_episode_steps=cfg.env.max_episode_steps, seed=seed, env_kwargs=cfg.env.kwargs)
+        return make_toy_text_env(
+            cfg.env.env_id,
+            num_envs,
+            backend=cfg.env.backend,
+            max_episode_steps=cfg.env.max_episode_steps,
+            seed=seed,
+            env_kwargs=cfg.env.kwargs,
+        )
 
     def networks(self, cfg: TaxiConfig, variant, setup: Setup) -> Networks:
         A, x = setup.n_actions, setup.extra
@@ -492,6 +588,7 @@ class GymFamily(EnvFamily):
             if inverse_model is not None:  # NaN where the demos carry no true actions
                 row[IDM_ACCURACY_EXPERT] = inverse_model_accuracy(inverse_model, demos) if labelled else math.nan
             return row
+
         return evaluate
 
     def register_late_hooks(self, run: Run) -> None:
@@ -522,7 +619,8 @@ class GymFamily(EnvFamily):
             "final_eval_episodes": int(final_returns.numel()),
             "optimal_return": optimal_return,
             IDM_ACCURACY_EXPERT: inverse_model_accuracy(run.inverse_model, run.demos)
-            if run.inverse_model is not None and labelled else None,
+            if run.inverse_model is not None and labelled
+            else None,
         }, {}
 
     def title(self, cfg: TaxiConfig) -> str:

@@ -1,4 +1,5 @@
 """Nested dataclass configs from plain (e.g. Hydra) dicts, with the types checked."""
+
 from __future__ import annotations
 
 import copy
@@ -9,16 +10,27 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["dataclass_from_dict", "flatten_dict", "merge_dicts", "check_types", "check_int", "check_float",
-           "MAX_COUNT", "MAX_FRAMES", "MAX_COEFF", "MAX_SEED", "MAX_THREADS"]
+__all__ = [
+    "dataclass_from_dict",
+    "flatten_dict",
+    "merge_dicts",
+    "check_types",
+    "check_int",
+    "check_float",
+    "MAX_COUNT",
+    "MAX_FRAMES",
+    "MAX_COEFF",
+    "MAX_SEED",
+    "MAX_THREADS",
+]
 
 # Ceilings of the validation (the schemas' validate methods): far above any real run, low enough that
 # the values stay exact in float64 and int64 and their products (frames per batch, squared gradients of
 # float32 losses) cannot overflow.
-MAX_COUNT = 1_000_000          # sizes and counts: envs, layers, widths, batch sizes, episodes, updates
-MAX_FRAMES = 10**12            # frame and step counts: total_frames, *_frames, episode lengths
-MAX_COEFF = 1e6                # loss weights and other unbounded positive reals
-MAX_SEED = 10**9               # seeds (the runs add offsets up to ~1e6 for their other streams; ALE takes int32)
+MAX_COUNT = 1_000_000  # sizes and counts: envs, layers, widths, batch sizes, episodes, updates
+MAX_FRAMES = 10**12  # frame and step counts: total_frames, *_frames, episode lengths
+MAX_COEFF = 1e6  # loss weights and other unbounded positive reals
+MAX_SEED = 10**9  # seeds (the runs add offsets up to ~1e6 for their other streams; ALE takes int32)
 MAX_THREADS = 1024
 
 _SCALARS = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
@@ -36,7 +48,8 @@ def _check(value: Any, hint: Any, key: str) -> Any:
     if hint not in _SCALARS:
         return value
     ok = (isinstance(value, hint) and not (hint is int and isinstance(value, bool))) or (
-        hint is float and isinstance(value, int) and not isinstance(value, bool))
+        hint is float and isinstance(value, int) and not isinstance(value, bool)
+    )
     if not ok:
         raise ValueError(f"{key}={value!r} must be {_SCALARS[hint]}")
     return float(value) if hint is float else value
@@ -68,15 +81,24 @@ def check_int(name: str, value: Any, lo: int, cap: int = MAX_COUNT) -> None:
         raise ValueError(f"{name} must be >= {lo} (an integer up to {cap:_}), got {value!r}")
 
 
-def check_float(name: str, value: Any, lo: float, hi: float | None = None, *, lo_open: bool = False,
-                hi_open: bool = False, cap: float = MAX_COEFF) -> None:
+def check_float(
+    name: str,
+    value: Any,
+    lo: float,
+    hi: float | None = None,
+    *,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    cap: float = MAX_COEFF,
+) -> None:
     """``value`` is a finite number (NaN and infinities refused) in the interval from ``lo`` to
     ``hi`` (open ends as asked), or, without ``hi``, above ``lo`` and at most ``cap``; else a
     one-line ``ValueError`` naming ``name``."""
     ok = (_is_int(value) or isinstance(value, float)) and math.isfinite(value)
     if ok:
         ok = (value > lo if lo_open else value >= lo) and (
-            value <= cap if hi is None else (value < hi if hi_open else value <= hi))
+            value <= cap if hi is None else (value < hi if hi_open else value <= hi)
+        )
     if not ok:
         if hi is None:
             want = f"{'>' if lo_open else '>='} {lo:g} (a finite number up to {cap:g})"

@@ -1,4 +1,5 @@
 """The ``device`` setting: ``auto`` | ``cpu`` | ``cuda`` (``cuda:N``)."""
+
 from __future__ import annotations
 
 import torch
@@ -40,8 +41,10 @@ def resolve_device(device: str | torch.device | None = "auto", *, small_model: b
         if _STAND_IN is not None:
             return _STAND_IN
         if not torch.cuda.is_available():
-            raise ValueError(f"device={device!r} but PyTorch sees no CUDA GPU (torch {torch.__version__}); "
-                             "use device=cpu or device=auto")
+            raise ValueError(
+                f"device={device!r} but PyTorch sees no CUDA GPU (torch {torch.__version__}); "
+                "use device=cpu or device=auto"
+            )
         if dev.index is not None and dev.index >= torch.cuda.device_count():
             raise ValueError(f"device={device!r} but only {torch.cuda.device_count()} CUDA GPU(s) are visible")
     return dev

@@ -1,5 +1,6 @@
 """Safe outputs and inputs: run folders that are never silently overwritten or shared,
 memory-mapped folders checked against their metadata before they are opened."""
+
 from __future__ import annotations
 
 import fcntl
@@ -11,8 +12,17 @@ from typing import Any
 
 import torch
 
-__all__ = ["RUN_FILES", "take_lock", "check_memmap_folder", "check_resume_target", "checkpoint_frames", "out_dir_problem", "out_dir_from_overrides",
-           "prepare_out_dir", "read_json"]
+__all__ = [
+    "RUN_FILES",
+    "take_lock",
+    "check_memmap_folder",
+    "check_resume_target",
+    "checkpoint_frames",
+    "out_dir_problem",
+    "out_dir_from_overrides",
+    "prepare_out_dir",
+    "read_json",
+]
 
 #: what a training run writes into its out_dir (``overwrite=true`` removes exactly these)
 RUN_FILES = ("summary.json", "model.pt", "metrics.csv", "learning_curve.png", "config.json", "checkpoint", "logs")
@@ -61,8 +71,10 @@ def check_memmap_folder(path: str | Path) -> None:
                 raise ValueError(f"{file} is missing (listed in {meta_path})")
             size = file.stat().st_size
             if size != expected:
-                raise ValueError(f"{file} holds {size:,} bytes but {meta_path} describes {expected:,} "
-                                 f"(shape {entry['shape']}, {entry['dtype']}): the file is truncated or damaged")
+                raise ValueError(
+                    f"{file} holds {size:,} bytes but {meta_path} describes {expected:,} "
+                    f"(shape {entry['shape']}, {entry['dtype']}): the file is truncated or damaged"
+                )
 
 
 def _recover_checkpoint(ckpt: Path) -> None:
@@ -75,8 +87,10 @@ def _recover_checkpoint(ckpt: Path) -> None:
     backups = sorted(ckpt.parent.glob(f".{ckpt.name}.backup-*"), key=lambda p: p.stat().st_mtime)
     if backups:
         backups[-1].rename(ckpt)
-        print(f"resume: {ckpt} was being replaced when its run stopped; restored the previous one "
-              f"({backups[-1].name})", flush=True)
+        print(
+            f"resume: {ckpt} was being replaced when its run stopped; restored the previous one ({backups[-1].name})",
+            flush=True,
+        )
 
 
 def out_dir_problem(out: str | Path) -> str | None:
@@ -136,8 +150,10 @@ def check_resume_target(out: str | Path, total_frames: int, checkpoint: str = "c
         frames = data.get("frames") if isinstance(data, dict) else None
         frames = frames if isinstance(frames, int) and not isinstance(frames, bool) else None
     if frames is not None and frames >= total_frames:
-        raise ValueError(f"resume=true: the run in {out} is already at {frames:,} frames; raise total_frames "
-                         f"(now {total_frames:,}) to train further")
+        raise ValueError(
+            f"resume=true: the run in {out} is already at {frames:,} frames; raise total_frames "
+            f"(now {total_frames:,}) to train further"
+        )
 
 
 def take_lock(path: Path, holder: str):
@@ -149,13 +165,14 @@ def take_lock(path: Path, holder: str):
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         lock.close()
-        raise ValueError(f"out_dir {path.parent} is in use by {holder} (it holds {path}); "
-                         "wait for it to finish or choose another out_dir") from None
+        raise ValueError(
+            f"out_dir {path.parent} is in use by {holder} (it holds {path}); "
+            "wait for it to finish or choose another out_dir"
+        ) from None
     return lock
 
 
-def prepare_out_dir(out: str | Path, *, resume: bool = False, overwrite: bool = False,
-                    checkpoint: str = "checkpoint"):
+def prepare_out_dir(out: str | Path, *, resume: bool = False, overwrite: bool = False, checkpoint: str = "checkpoint"):
     """Makes ``out`` ready for a run and returns the open lock file (keep it for the
     run's lifetime; the OS releases it when the process ends, even on SIGKILL).
 
@@ -184,14 +201,17 @@ def prepare_out_dir(out: str | Path, *, resume: bool = False, overwrite: bool = 
                 p = out / f
                 shutil.rmtree(p) if p.is_dir() else p.unlink()
         elif resume and not has_ckpt and any(f != "logs" for f in present):
-            raise ValueError(f"resume=true but {out} has no {checkpoint}/ to resume from, only {present}; "
-                             "pass overwrite=true to start again there, or choose another out_dir")
+            raise ValueError(
+                f"resume=true but {out} has no {checkpoint}/ to resume from, only {present}; "
+                "pass overwrite=true to start again there, or choose another out_dir"
+            )
         elif not resume and any(f != "logs" for f in present):
             state = "finished" if "summary.json" in present else "started"
-            raise ValueError(f"out_dir {out} holds a {state} run ({', '.join(present)}); pass overwrite=true to "
-                             "replace it, resume=true to continue it, or choose another out_dir")
+            raise ValueError(
+                f"out_dir {out} holds a {state} run ({', '.join(present)}); pass overwrite=true to "
+                "replace it, resume=true to continue it, or choose another out_dir"
+            )
     except Exception:
         lock.close()
         raise
     return lock
-

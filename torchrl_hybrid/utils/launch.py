@@ -10,13 +10,15 @@ dies (killed, out of memory, node lost) is started again by Ray up to
 runs are kept and an interrupted run resumes from its checkpoint. When the retries run
 out, the study stops with an error that says how to continue.
 """
+
 from __future__ import annotations
 
 import math
 import multiprocessing as mp
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 __all__ = ["LAUNCHERS", "in_worker", "init_ray", "run_jobs"]
 
@@ -62,15 +64,21 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
     if ray.is_initialized():
         return False
     if address is None:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, _node_ip_address="127.0.0.1",
-                 _system_config={"worker_niceness": 0})
+        ray.init(
+            num_cpus=num_cpus,
+            include_dashboard=False,
+            log_to_driver=False,
+            _node_ip_address="127.0.0.1",
+            _system_config={"worker_niceness": 0},
+        )
     else:
         ray.init(address=address, log_to_driver=False)
     return True
 
 
-def _run_local(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, fresh_process: bool,
-               poll: Callable[[], None] | None) -> Iterator[Any]:
+def _run_local(
+    fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, fresh_process: bool, poll: Callable[[], None] | None
+) -> Iterator[Any]:
     """``workers`` spawned processes. A worker that dies (SIGKILL, the kernel's OOM killer)
     stops the study with an error instead of a wait: ``multiprocessing.Pool`` loses the job
     of a killed worker and waits for its result forever (an Atari sweep of three hybrid runs
@@ -79,8 +87,12 @@ def _run_local(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, fres
     workers too, which resume from their checkpoints when the study is run again. Workers
     still busy when the caller stops early (an error, Ctrl-C) are terminated, as
     ``Pool.__exit__`` did, not waited for."""
-    ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_mark_worker,
-                             max_tasks_per_child=1 if fresh_process else None)
+    ex = ProcessPoolExecutor(
+        workers,
+        mp_context=mp.get_context("spawn"),
+        initializer=_mark_worker,
+        max_tasks_per_child=1 if fresh_process else None,
+    )
     pending = {ex.submit(fn, job) for job in jobs}
     try:
         while pending:
@@ -96,7 +108,8 @@ def _run_local(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, fres
                         f"killer: {workers} jobs side by side may need more memory than this machine has); the "
                         "study stops here and its other jobs were stopped too. Run the same command again, with "
                         "fewer workers if memory was the cause: finished runs are kept and interrupted ones resume "
-                        "from their checkpoints") from err
+                        "from their checkpoints"
+                    ) from err
                 yield result
     finally:
         if pending:
@@ -110,13 +123,24 @@ _CLUSTER_ERRORS = ("LocalRayletDiedError", "RaySystemError", "ObjectLostError")
 
 
 def _continue_hint(what: str) -> str:
-    return (f"{what}; the study stops here. Run the same command again to continue: finished runs are kept "
-            "and interrupted ones resume from their checkpoints")
+    return (
+        f"{what}; the study stops here. Run the same command again to continue: finished runs are kept "
+        "and interrupted ones resume from their checkpoints"
+    )
 
 
-def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "local", workers: int = 2,
-             address: str | None = None, cpus_per_job: float = 1.0, max_retries: int = 2,
-             fresh_process: bool = False, poll: Callable[[], None] | None = None) -> Iterator[Any]:
+def run_jobs(
+    fn: Callable[[Any], Any],
+    jobs: Sequence[Any],
+    *,
+    launcher: str = "local",
+    workers: int = 2,
+    address: str | None = None,
+    cpus_per_job: float = 1.0,
+    max_retries: int = 2,
+    fresh_process: bool = False,
+    poll: Callable[[], None] | None = None,
+) -> Iterator[Any]:
     """Runs ``fn(job)`` for every job and yields the results in the order they finish.
 
     Args:
@@ -168,10 +192,16 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], *, launcher: str = "
             i = pending.pop(done[0])
             try:
                 yield ray.get(done[0])
-            except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
-                    ray.exceptions.OutOfMemoryError) as err:
-                raise RuntimeError(_continue_hint(
-                    f"job {i} of {len(jobs)} lost its worker {max_retries + 1} times ({type(err).__name__})")) from err
+            except (
+                ray.exceptions.WorkerCrashedError,
+                ray.exceptions.NodeDiedError,
+                ray.exceptions.OutOfMemoryError,
+            ) as err:
+                raise RuntimeError(
+                    _continue_hint(
+                        f"job {i} of {len(jobs)} lost its worker {max_retries + 1} times ({type(err).__name__})"
+                    )
+                ) from err
             except lost_cluster as err:
                 raise RuntimeError(_continue_hint(f"the Ray cluster failed ({type(err).__name__}: {err})")) from err
     finally:

@@ -11,6 +11,7 @@ Files written before the two were named apart (all results this project committe
 before December 2026) have one ``idm_accuracy`` column that held the expert-pair
 accuracy, since their demos carried labels; :func:`upgrade_accuracy_keys` reads them so.
 """
+
 from __future__ import annotations
 
 __all__ = ["IDM_ACCURACY_AGENT", "IDM_ACCURACY_EXPERT", "upgrade_accuracy_keys"]

@@ -1,9 +1,10 @@
 """Figures."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 __all__ = ["plot_learning_curve"]
 

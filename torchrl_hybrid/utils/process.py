@@ -1,5 +1,6 @@
 """Process-wide settings, made by whoever owns the process (a recipe, a study's worker
 process), never by the library functions a user calls from their own code."""
+
 from __future__ import annotations
 
 import logging
@@ -36,7 +37,11 @@ def configure_worker(threads: int | None = None) -> None:
     if in_worker():
         configure_process(threads)
     elif threads and torch.get_num_threads() != int(threads):
-        warnings.warn(f"this job asks for {int(threads)} torch thread(s) but runs in the calling process, which "
-                      f"has {torch.get_num_threads()} (workers=1 leaves the caller's settings alone): call "
-                      f"torchrl_hybrid.utils.process.configure_process({int(threads)}) first, or more runs "
-                      "side by side than cores will crawl", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"this job asks for {int(threads)} torch thread(s) but runs in the calling process, which "
+            f"has {torch.get_num_threads()} (workers=1 leaves the caller's settings alone): call "
+            f"torchrl_hybrid.utils.process.configure_process({int(threads)}) first, or more runs "
+            "side by side than cores will crawl",
+            RuntimeWarning,
+            stacklevel=2,
+        )

@@ -1,4 +1,5 @@
 """Statistics over seeds, with SciPy's resampling tests."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,15 +12,25 @@ def _mean_diff(a, b, axis=-1):
     return np.mean(a, axis=axis) - np.mean(b, axis=axis)
 
 
-def mean_diff_ci(a, b, *, confidence: float = 0.95, n_resamples: int = 4000, seed: int = 0) -> tuple[float, float, float]:
+def mean_diff_ci(
+    a, b, *, confidence: float = 0.95, n_resamples: int = 4000, seed: int = 0
+) -> tuple[float, float, float]:
     """``mean(a) - mean(b)`` for independent samples (e.g. two agents' seeds) and its
     bootstrap percentile interval (``scipy.stats.bootstrap``, each sample resampled
     on its own)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     if len(a) < 2 or len(b) < 2:
         raise ValueError(f"a bootstrap interval needs at least 2 values in each sample, got {len(a)} and {len(b)}")
-    res = stats.bootstrap((a, b), _mean_diff, paired=False, vectorized=True, confidence_level=confidence,
-                          n_resamples=n_resamples, method="percentile", rng=np.random.default_rng(seed))
+    res = stats.bootstrap(
+        (a, b),
+        _mean_diff,
+        paired=False,
+        vectorized=True,
+        confidence_level=confidence,
+        n_resamples=n_resamples,
+        method="percentile",
+        rng=np.random.default_rng(seed),
+    )
     return float(_mean_diff(a, b)), float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
@@ -28,8 +39,15 @@ def mean_ci(x, *, confidence: float = 0.95, n_resamples: int = 4000, seed: int =
     x = np.asarray(x, float)
     if len(x) < 2:
         raise ValueError(f"a bootstrap interval needs at least 2 values, got {len(x)}")
-    res = stats.bootstrap((x,), np.mean, vectorized=True, confidence_level=confidence, n_resamples=n_resamples,
-                          method="percentile", rng=np.random.default_rng(seed))
+    res = stats.bootstrap(
+        (x,),
+        np.mean,
+        vectorized=True,
+        confidence_level=confidence,
+        n_resamples=n_resamples,
+        method="percentile",
+        rng=np.random.default_rng(seed),
+    )
     return float(x.mean()), float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
@@ -37,6 +55,13 @@ def permutation_p(a, b, *, n_resamples: int = 20000, seed: int = 0) -> float:
     """Two-sided permutation-test p-value for ``mean(a) == mean(b)``
     (``scipy.stats.permutation_test``; exact when the sample is small enough)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    res = stats.permutation_test((a, b), _mean_diff, permutation_type="independent", vectorized=True,
-                                 n_resamples=n_resamples, alternative="two-sided", rng=np.random.default_rng(seed))
+    res = stats.permutation_test(
+        (a, b),
+        _mean_diff,
+        permutation_type="independent",
+        vectorized=True,
+        n_resamples=n_resamples,
+        alternative="two-sided",
+        rng=np.random.default_rng(seed),
+    )
     return float(res.pvalue)
