@@ -7,13 +7,13 @@ ARGS ?=
 # pytest-xdist processes for `make test` (one torch thread each)
 TEST_WORKERS ?= 2
 
-.PHONY: run test lint test-cuda install clean
+.PHONY: run test lint docs test-cuda install clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e ".[test,lint,tensorboard]"
+	$(PY) -m pip install -q -e ".[test,lint,docs,tensorboard]"
 	touch $@
 
 install: $(VENV)/.installed
@@ -36,4 +36,9 @@ test-cuda: $(VENV)/.installed
 	TORCHRL_HYBRID_TEST_DEVICE=cuda $(PY) -m pytest -q tests
 
 clean:
-	rm -rf $(VENV) outputs .pytest_cache .hypothesis
+	rm -rf $(VENV) outputs site .pytest_cache .hypothesis
+
+# the documentation site (mkdocs-material, API reference from the docstrings, the notebooks) into site/;
+# warnings are errors, as in CI. `.venv/bin/mkdocs serve` serves it while you edit.
+docs: $(VENV)/.installed
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet

@@ -18,7 +18,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_hybrid.envs.atari import AtariEnv
-from torchrl_hybrid.trainers.atari import load_expert
+from torchrl_hybrid.families.atari import load_expert
 
 
 def action_usage(path: str, steps: int = 1500, num_envs: int = 4, seed: int = 123, window: int = 20) -> dict:

@@ -28,8 +28,8 @@ import torch
 from torchrl_hybrid.data import EXPERT_ACTION_KEY, load_demos
 from torchrl_hybrid.envs.atari import action_names
 from torchrl_hybrid.modules import AtariEncoder, make_atari_actor_critic
-from torchrl_hybrid.trainers.hybrid import get_variant
 from torchrl_hybrid.trainers.run import make_inverse_model
+from torchrl_hybrid.variants import get_variant
 
 CONFIDENCE_THRESHOLDS = (0.5, 0.6, 0.8, 0.9)
 

@@ -54,7 +54,7 @@ def profile_run(
     device: str = "cpu",
     num_envs: int = 16,
 ) -> dict:
-    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.families.atari import build_atari
 
     run = build_atari(bench_config(variant, game, steps, out, demos, threads, device=device, num_envs=num_envs))
     timers: dict[str, float] = defaultdict(float)

@@ -47,7 +47,7 @@ def bench_config(
     collector: dict | None = None,
 ):
     """The measured run: BC on from the start, no logging, diagnostics or checkpoints."""
-    from torchrl_hybrid.trainers.atari import atari_config
+    from torchrl_hybrid.families.atari import atari_config
 
     cfg = {
         "variant": variant,
@@ -75,7 +75,7 @@ def bench_config(
 def bench_demos(game: str, tmp: Path, num_envs: int = 16) -> Path:
     """Demos for the hybrid's BC term from an untrained policy (the cost is what matters;
     ``num_envs``: the untrained expert's envs, at most 16)."""
-    from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari
+    from torchrl_hybrid.families.atari import atari_config, record_demos, train_atari
 
     train_atari(
         atari_config(
@@ -102,7 +102,7 @@ def bench_demos(game: str, tmp: Path, num_envs: int = 16) -> Path:
 
 
 def ours(variant: str, game: str, steps: int, out: Path, demos: Path | None, threads: int, **kw) -> float:
-    from torchrl_hybrid.trainers.atari import train_atari
+    from torchrl_hybrid.families.atari import train_atari
 
     cfg = bench_config(variant, game, steps, out, demos, threads, **kw)
     return train_atari(cfg)["frames_per_s"] / 4  # game frames/s -> agent steps/s

@@ -22,9 +22,9 @@ logging.getLogger("torchrl").setLevel(logging.WARNING)
 
 
 def measure(env_id: str, kind: str, workers: int, batches: int, num_envs: int) -> float:
-    from torchrl_hybrid.envs import make_toy_text_env, observation_kind
+    from torchrl_hybrid.envs import make_gym_env, observation_kind
+    from torchrl_hybrid.families.gym import config_from_dict, make_collector
     from torchrl_hybrid.modules import make_mlp_actor_critic, make_tabular_actor_critic
-    from torchrl_hybrid.trainers.taxi import config_from_dict, make_collector
 
     obs, size, n_actions = observation_kind(env_id)
     n_steps = 2 if obs == "discrete" else 5
@@ -41,7 +41,7 @@ def measure(env_id: str, kind: str, workers: int, batches: int, num_envs: int) -
         if obs == "discrete"
         else make_mlp_actor_critic(size, n_actions)[0]
     )
-    env = make_toy_text_env(env_id, num_envs, max_episode_steps=cfg.env.max_episode_steps, seed=0)
+    env = make_gym_env(env_id, num_envs, max_episode_steps=cfg.env.max_episode_steps, seed=0)
     collector = make_collector(cfg, env, actor, torch.device("cpu"))
     frames, t0 = 0, None
     for i, batch in enumerate(collector):

@@ -39,7 +39,7 @@ def main() -> None:
         ap.error(f"--workers must each be >= 1, got {args.workers}")
     if importlib.util.find_spec("ray") is None:
         ap.error("the ray launcher needs Ray: pip install 'ray>=2.9' (or the project's [ray] extra)")
-    from torchrl_hybrid.trainers.taxi import config_from_dict
+    from torchrl_hybrid.families.gym import config_from_dict
 
     try:
         for over in configurations(args.groups).values():

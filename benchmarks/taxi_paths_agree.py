@@ -1,5 +1,5 @@
 """Do the two Taxi training paths learn alike? Trains the same seeds with the
-TorchRL collector/trainer path (``train_taxi``) and the batched fast path
+TorchRL collector/trainer path (``train_gym``) and the batched fast path
 (``train_taxi_batched``) and compares their learning curves.
 
     python benchmarks/taxi_paths_agree.py --seeds 16 --frames 80000 --variant hybrid_dual
@@ -28,7 +28,7 @@ logging.getLogger("torchrl").setLevel(logging.WARNING)
 
 def run_config(variant: str, seed: int, frames: int, out_dir: str, logger: dict | None = None):
     """One seed's run (both paths train from the same settings)."""
-    from torchrl_hybrid.trainers.taxi import config_from_dict
+    from torchrl_hybrid.families.gym import config_from_dict
 
     return config_from_dict(
         {
@@ -52,8 +52,8 @@ def compare(variant: str, seeds: int, frames: int, workers_note: str = "", logge
 
 def _compare(variant: str, seeds: int, frames: int, root: str, logger: dict | None) -> dict:
     from torchrl_hybrid.experiments.taxi_sweep import OPTIMAL, frames_to_reach
-    from torchrl_hybrid.trainers.batched import train_taxi_batched
-    from torchrl_hybrid.trainers.taxi import train_taxi
+    from torchrl_hybrid.families.gym import train_gym
+    from torchrl_hybrid.families.gym_batched import train_taxi_batched
 
     def cfg(seed):
         return run_config(variant, seed, frames, f"{root}/{variant}_{seed}", logger)
@@ -70,7 +70,7 @@ def _compare(variant: str, seeds: int, frames: int, root: str, logger: dict | No
     torchrl_curves, torchrl_final = [], []
     for s in range(seeds):
         c = cfg(s)
-        out = train_taxi(c)
+        out = train_gym(c)
         torchrl_final.append(out["final_return"])
         with open(f"{c.out_dir}/metrics.csv") as f:
             rows = list(csv.DictReader(f))

@@ -58,9 +58,9 @@ def main() -> None:
 
     from torchrl.envs import GymEnv, SerialEnv
 
-    from torchrl_hybrid.envs import TabularModel, make_toy_text_env
-    from torchrl_hybrid.trainers.batched import train_taxi_batched
-    from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
+    from torchrl_hybrid.envs import TabularModel, make_gym_env
+    from torchrl_hybrid.families.gym import config_from_dict, train_gym
+    from torchrl_hybrid.families.gym_batched import train_taxi_batched
 
     logger = {"progress_bar": False, "backend": "none", "checkpoint": False}
     if args.eval_episodes is not None:
@@ -92,7 +92,7 @@ def main() -> None:
             timed(lambda: ser.rollout(50, break_when_any_done=False).numel(), secs)[0],
         )
     )
-    tab = make_toy_text_env("Taxi-v4", 16, backend="tabular")
+    tab = make_gym_env("Taxi-v4", 16, backend="tabular")
     rows.append(
         (
             "env: TabularEnv (EnvBase), 16 envs",
@@ -116,10 +116,10 @@ def main() -> None:
     # refuses a non-empty out_dir): runs of this script, one after another or side by side, never meet
     with tempfile.TemporaryDirectory(prefix="taxi_bench_") as root:
         t0 = time.perf_counter()
-        train_taxi(cfg(f"{root}/gym", env={"backend": "gym"}))
+        train_gym(cfg(f"{root}/gym", env={"backend": "gym"}))
         rows.append(("train: 1 seed, TorchRL trainer, GymEnv backend", frames / (time.perf_counter() - t0)))
         t0 = time.perf_counter()
-        train_taxi(cfg(f"{root}/tabular"))
+        train_gym(cfg(f"{root}/tabular"))
         rows.append(("train: 1 seed, TorchRL trainer, TabularEnv backend", frames / (time.perf_counter() - t0)))
         t0 = time.perf_counter()
         train_taxi_batched([cfg(f"{root}/batched_{i}", seed=i) for i in range(args.seeds)], write_outputs=False)

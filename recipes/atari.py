@@ -5,7 +5,7 @@
     python recipes/atari.py env.game=Pong demo.path=demos/pong                  # 3. the hybrid agent
 
 Options: recipes/config/atari.yaml, whose schema (every setting, its default and what it does)
-is AtariConfig in torchrl_hybrid/trainers/atari.py; `--cfg job` prints them all.
+is AtariConfig in torchrl_hybrid/families/atari.py; `--cfg job` prints them all.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_hybrid.configs import register_configs
-from torchrl_hybrid.trainers.atari import atari_config, train_atari
+from torchrl_hybrid.families.atari import atari_config, train_atari
 from torchrl_hybrid.utils.process import configure_process
 
 register_configs()  # the schemas recipes/config/*.yaml start from

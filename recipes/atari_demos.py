@@ -11,7 +11,7 @@ import hydra
 from omegaconf import DictConfig
 from omegaconf.errors import MissingMandatoryValue
 
-from torchrl_hybrid.trainers.atari import record_demos
+from torchrl_hybrid.families.atari import record_demos
 from torchrl_hybrid.utils.process import configure_process
 
 

@@ -15,7 +15,7 @@ import hydra
 from omegaconf import DictConfig
 from omegaconf.errors import MissingMandatoryValue
 
-from torchrl_hybrid.trainers.atari import evaluate_atari, load_expert
+from torchrl_hybrid.families.atari import evaluate_atari, load_expert
 from torchrl_hybrid.utils.process import configure_process
 
 

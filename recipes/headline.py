@@ -5,7 +5,7 @@ hybrid, the best arm with inferred labels, the oracle; the issue's two goals per
     python recipes/headline.py cartpole=results/cartpole/compare   # others: label=out_dir ...
 
 Reads each comparison's summary.json (recipes/compare.py writes it) and rewrites the block
-between <!-- headline:start --> and <!-- headline:end --> in README.md.
+between <!-- headline:start --> and <!-- headline:end --> in README.md and docs/results.md.
 """
 
 from __future__ import annotations
@@ -45,7 +45,8 @@ def main(argv: list[str]) -> None:
         )
     print(table)
     if not argv:
-        update_readme_block(ROOT / "README.md", table)
+        for page in ("README.md", "docs/results.md"):  # the README's headline and the docs' results page
+            update_readme_block(ROOT / page, table)
 
 
 if __name__ == "__main__":

@@ -4,8 +4,8 @@
     python recipes/taxi.py variant=a2c seed=3    # a baseline
     python recipes/taxi.py demo.eta=0.5 out_dir=/tmp/eta05
 
-Every option is documented in the schema of recipes/config/taxi.yaml (TaxiConfig in
-torchrl_hybrid/trainers/taxi.py; `--cfg job` prints them all). Writes metrics.csv,
+Every option is documented in the schema of recipes/config/taxi.yaml (GymConfig in
+torchrl_hybrid/families/gym.py; `--cfg job` prints them all). Writes metrics.csv,
 summary.json, learning_curve.png, model.pt, config.json and a TorchRL checkpoint/ folder
 into ``out_dir`` (``resume=true`` continues it, ``overwrite=true`` replaces it).
 """
@@ -18,7 +18,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from torchrl_hybrid.configs import register_configs
-from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
+from torchrl_hybrid.families.gym import config_from_dict, train_gym
 from torchrl_hybrid.utils.process import configure_process
 
 register_configs()  # the schemas recipes/config/*.yaml start from
@@ -34,13 +34,13 @@ def run(cfg: DictConfig) -> None:
         ).validate()  # every setting checked before out_dir is touched (also engine=batched)
         configure_process(config.threads)
         if config.engine == "batched":
-            from torchrl_hybrid.trainers.batched import train_taxi_batched
+            from torchrl_hybrid.families.gym_batched import train_taxi_batched
             from torchrl_hybrid.utils.files import prepare_out_dir
 
             with prepare_out_dir(config.out_dir, overwrite=config.overwrite):  # the same out_dir rules
                 summary = train_taxi_batched([config])[0]
         else:
-            summary = train_taxi(config)
+            summary = train_gym(config)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

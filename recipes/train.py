@@ -8,7 +8,7 @@ FrozenLake, CliffWalking) or vector observations (CartPole), and Atari games.
     python recipes/train.py --config-name cartpole demo.expert=experts/cartpole/model.pt
     python recipes/train.py --config-name atari env.game=Pong demo.path=demos/pong  # = recipes/atari.py
 
-Options: recipes/config/taxi.yaml and recipes/config/atari.yaml (their schemas, TaxiConfig and
+Options: recipes/config/taxi.yaml and recipes/config/atari.yaml (their schemas, GymConfig and
 AtariConfig, document every one; `--cfg job` prints them) and
 the presets beside them. Atari's expert, demo and evaluation steps have their own recipes
 (recipes/atari_expert.py, atari_demos.py, atari_eval.py).

@@ -93,7 +93,7 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from torchrl_hybrid.data import CurriculumSampler, load_demos, make_expert_buffer  # noqa: E402
-from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari  # noqa: E402
+from torchrl_hybrid.families.atari import atari_config, record_demos, train_atari  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {
@@ -292,8 +292,8 @@ def test_atari_recipes_command_line(tmp_path):
 def test_shared_feature_a2c_path_equals_plain_a2c_loss():
     """Stored collection values + NextStateValueHook + the encoder's feature reuse
     give the same A2C loss and gradients as TorchRL's A2CLoss computing everything."""
-    from torchrl_hybrid.trainers import VARIANTS, make_hybrid_loss
     from torchrl_hybrid.trainers.hooks import NextStateValueHook
+    from torchrl_hybrid.variants import VARIANTS, make_hybrid_loss
 
     torch.manual_seed(0)
     env = AtariEnv("Pong", 2, num_threads=1)
@@ -895,7 +895,7 @@ def test_hybrid_runs_with_its_games_in_worker_processes(pong_demos, tmp_path, ki
 
 
 def test_compile_setting_compiles_the_shared_cnn(tmp_path):
-    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.families.atari import build_atari
 
     run = build_atari(tiny(tmp_path / "c", variant="a2c", compile="default"))
     assert run.encoder._compiled is not None  # collection and learner share the compiled CNN
@@ -935,7 +935,7 @@ def test_inverse_label_diagnostic_reads_back_the_trained_models(pong_demos, tmp_
     CNN, or one each) from model.pt and gives the labels the trained run's own modules give."""
     import importlib.util
 
-    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.families.atari import build_atari
     from torchrl_hybrid.trainers.run import finish_run
 
     spec = importlib.util.spec_from_file_location("inverse_labels", ROOT / "benchmarks" / "atari_inverse_labels.py")
@@ -1003,7 +1003,7 @@ def test_inverse_model_with_its_own_cnn_leaves_the_policy_cnn_to_a2c(pong_demos,
     """idm_encoder=own: the inverse model gets a CNN of its own (same architecture, separate
     weights, in the optimiser once), its loss sends no gradient into the actor's CNN, and a run
     trains and resumes with it; a checkpoint of the other kind is not resumed."""
-    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.families.atari import build_atari
     from torchrl_hybrid.trainers.run import finish_run
 
     demo = {"path": str(pong_demos / "demos")}
@@ -1063,7 +1063,7 @@ def test_init_from_warm_starts_the_networks_and_counts_their_frames(tmp_path):
     first = train_atari(tiny(tmp_path / "first", variant="a2c"))
     saved = torch.load(tmp_path / "first" / "model.pt", weights_only=False)
     assert saved["total_frames_seen"] == first["frames"] == 256
-    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.families.atari import build_atari
 
     run = build_atari(tiny(tmp_path / "warm", variant="a2c", seed=7, init_from=str(tmp_path / "first" / "model.pt")))
     try:

@@ -5,10 +5,9 @@ import torch
 from tensordict import TensorDict
 from torchrl.collectors import Collector
 
-from torchrl_hybrid.envs import make_toy_text_env
-from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics, OneHotEncoder, make_tabular_actor_critic
-from torchrl_hybrid.trainers import VARIANTS, make_hybrid_loss
-from torchrl_hybrid.trainers.batched import (
+from torchrl_hybrid.envs import make_gym_env
+from torchrl_hybrid.families.gym import GymConfig, config_from_dict
+from torchrl_hybrid.families.gym_batched import (
     BatchedTabularAgents,
     LazyRMSprop,
     _Demos,
@@ -17,7 +16,8 @@ from torchrl_hybrid.trainers.batched import (
     idm_loss_terms,
     train_taxi_batched,
 )
-from torchrl_hybrid.trainers.taxi import TaxiConfig, config_from_dict
+from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics, OneHotEncoder, make_tabular_actor_critic
+from torchrl_hybrid.variants import VARIANTS, make_hybrid_loss
 
 
 def copy_into(agents, actor, critic, idm):
@@ -44,7 +44,7 @@ def copy_into(agents, actor, critic, idm):
 @pytest.mark.parametrize("kind", ["dual", "mlp"])
 def test_batched_losses_equal_torchrl_losses(kind):
     torch.manual_seed(0)
-    cfg = TaxiConfig(variant=f"hybrid_{kind}")
+    cfg = GymConfig(variant=f"hybrid_{kind}")
     actor, critic = make_tabular_actor_critic(500, 6)
     idm = (
         DualInverseDynamics(OneHotEncoder(500), 6, rank=2)
@@ -53,7 +53,7 @@ def test_batched_losses_equal_torchrl_losses(kind):
     )
     loss = make_hybrid_loss(VARIANTS[cfg.variant], actor, critic, idm)
     # a real rollout with short episodes, so that it holds terminations and truncations
-    env = make_toy_text_env(num_envs=16, max_episode_steps=3, seed=1)
+    env = make_gym_env(num_envs=16, max_episode_steps=3, seed=1)
     batches = iter(Collector(env, actor, frames_per_batch=32, total_frames=32 * 40))
     batch = next(b for b in batches if b["next", "truncated"].any() and b["next", "done"][:, 0].any())
     # BC at the visited states (the authors' rho): the expert's pair of each visited state

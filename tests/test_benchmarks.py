@@ -61,7 +61,7 @@ def refused(script: str, *args: str, cwd: Path) -> str:
 
 
 def test_every_benchmark_is_smoked_here():
-    smoked = {m.group(1) for m in re.finditer(r'bench\("(\w+\.py)"', Path(__file__).read_text())}
+    smoked = {m.group(1) for m in re.finditer(r'bench\(\s*"(\w+\.py)"', Path(__file__).read_text())}
     assert smoked == {p.name for p in BENCHMARKS.glob("*.py")}
 
 
@@ -172,7 +172,7 @@ def atari_runs(tmp_path_factory):
     pytest.importorskip("ale_py")
     import torch
 
-    from torchrl_hybrid.trainers.atari import atari_config, record_demos, train_atari
+    from torchrl_hybrid.families.atari import atari_config, record_demos, train_atari
 
     tmp = tmp_path_factory.mktemp("atari_runs")
     threads = torch.get_num_threads()

@@ -11,8 +11,8 @@ from torchrl.envs.utils import ExplorationType  # noqa: E402
 
 from torchrl_hybrid.collectors import AtariCollector  # noqa: E402
 from torchrl_hybrid.envs.atari import AtariEnv  # noqa: E402
+from torchrl_hybrid.families.atari import atari_config, build_atari, load_expert, train_atari  # noqa: E402
 from torchrl_hybrid.modules import make_atari_actor_critic  # noqa: E402
-from torchrl_hybrid.trainers.atari import atari_config, build_atari, load_expert, train_atari  # noqa: E402
 from torchrl_hybrid.utils.device import resolve_device  # noqa: E402
 
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
@@ -135,7 +135,7 @@ def test_kept_collection_features_give_the_plain_loss_and_gradients(tmp_path, va
 
 @pytest.fixture(scope="module")
 def pong_demo_dir(tmp_path_factory):
-    from torchrl_hybrid.trainers.atari import record_demos
+    from torchrl_hybrid.families.atari import record_demos
 
     tmp = tmp_path_factory.mktemp("pong_demos")
     train_atari(
@@ -279,7 +279,7 @@ def test_checkpoint_resumes_and_loads_on_cpu(tmp_path):
 
 
 def test_a_checkpoint_for_another_game_is_refused(tmp_path):
-    from torchrl_hybrid.trainers.atari import evaluate_atari
+    from torchrl_hybrid.families.atari import evaluate_atari
 
     train_atari(_tiny(tmp_path, "cpu"))
     actor, ckpt = load_expert(tmp_path / "model.pt")
@@ -308,7 +308,7 @@ def test_files_that_are_not_atari_checkpoints_are_named(tmp_path):
 
 
 def test_atari_runs_and_demos_do_not_overwrite_results(tmp_path):
-    from torchrl_hybrid.trainers.atari import record_demos
+    from torchrl_hybrid.families.atari import record_demos
 
     train_atari(_tiny(tmp_path / "run", "cpu"))
     with pytest.raises(ValueError, match="holds a finished run"):

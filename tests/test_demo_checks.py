@@ -13,7 +13,7 @@ from torchrl_hybrid.data import pairs_from_trajectories, save_demos, tabular_tra
 from torchrl_hybrid.data.checks import UNBOUNDED_LIMIT
 from torchrl_hybrid.experts import record_episodes
 from torchrl_hybrid.experts.scripted import CallablePolicy
-from torchrl_hybrid.trainers.taxi import config_from_dict, make_gym_demos, make_taxi_demos, train_taxi
+from torchrl_hybrid.families.gym import config_from_dict, make_gym_demos, make_taxi_demos, train_gym
 
 CARTPOLE = {
     "env.env_id": "CartPole-v1",
@@ -72,7 +72,7 @@ def test_taxi_demos_with_random_true_actions_are_refused_by_il(tmp_path, taxi):
         match=r"random_actions: \d+ of \d+ pairs \(s, a, s'\) are not transitions of "
         r"Taxi-v4.*first: pair \d+.*re-record them",
     ):
-        train_taxi(tiny(tmp_path, variant="il", **{"demo.path": str(tmp_path / "random_actions")}))
+        train_gym(tiny(tmp_path, variant="il", **{"demo.path": str(tmp_path / "random_actions")}))
 
 
 def test_cartpole_demos_with_shuffled_next_states_are_refused(tmp_path, cartpole_demos):
@@ -84,7 +84,7 @@ def test_cartpole_demos_with_shuffled_next_states_are_refused(tmp_path, cartpole
         match=r"shuffled: \d+ of \d+ consecutive pairs within a trajectory do not chain "
         r".*first: pair \d+.*re-record them",
     ):
-        train_taxi(tiny(tmp_path, **CARTPOLE, **{"demo.path": str(tmp_path / "shuffled")}))
+        train_gym(tiny(tmp_path, **CARTPOLE, **{"demo.path": str(tmp_path / "shuffled")}))
 
 
 def test_cartpole_demos_far_outside_the_observation_space_are_refused(tmp_path, cartpole_demos):
@@ -98,7 +98,7 @@ def test_cartpole_demos_far_outside_the_observation_space_are_refused(tmp_path, 
         match=rf"scaled: {n} of {n} pairs have observations outside the observation "
         r"space of CartPole-v1 \(first: pair 0.*re-record them",
     ):
-        train_taxi(tiny(tmp_path, **CARTPOLE, **{"demo.path": str(tmp_path / "scaled")}))
+        train_gym(tiny(tmp_path, **CARTPOLE, **{"demo.path": str(tmp_path / "scaled")}))
     # a dimension without a bound (the cart's velocity) takes up to UNBOUNDED_LIMIT, no more
     fast = cartpole_demos.clone()
     fast["observation"][0, 1] = 2 * UNBOUNDED_LIMIT
@@ -109,7 +109,7 @@ def test_cartpole_demos_far_outside_the_observation_space_are_refused(tmp_path, 
 
 def test_atari_demos_without_metadata_say_where_and_how_to_record(tmp_path):
     pytest.importorskip("ale_py")
-    from torchrl_hybrid.trainers.atari import atari_config, train_atari
+    from torchrl_hybrid.families.atari import atari_config, train_atari
 
     frames = torch.randint(0, 255, (2, 7, 84, 84), dtype=torch.uint8, generator=torch.Generator().manual_seed(0))
     stacks = [torch.stack([f[t : t + 4] for t in range(4)]) for f in frames]  # 2 trajectories of 4 stacked states

@@ -85,7 +85,7 @@ def _assert_clean(check: DeviceRuleCheck, updates: int, max_syncs_per_update: fl
 
 
 def _taxi(tmp_path, **kw):
-    from torchrl_hybrid.trainers.taxi import config_from_dict
+    from torchrl_hybrid.families.gym import config_from_dict
 
     d = {
         "total_frames": 640,
@@ -103,10 +103,10 @@ def _taxi(tmp_path, **kw):
 
 @pytest.mark.parametrize("rho", ["visited", "uniform", "curriculum"])
 def test_taxi_hybrid_keeps_the_device_rules(tmp_path, rho):
-    from torchrl_hybrid.trainers.taxi import train_taxi
+    from torchrl_hybrid.families.gym import train_gym
 
     with DeviceRuleCheck() as check:
-        s = train_taxi(_taxi(tmp_path, demo={"rho": rho}))
+        s = train_gym(_taxi(tmp_path, demo={"rho": rho}))
     assert s["frames"] == 640
     updates = 640 // s["config"]["env"]["num_envs"] // s["config"]["loss"]["n_steps"]
     # per update: TorchRL's collector copies every env step to the host (the envs are on the CPU)
@@ -114,19 +114,19 @@ def test_taxi_hybrid_keeps_the_device_rules(tmp_path, rho):
 
 
 def test_taxi_resume_and_every_variant_keep_the_device_rules(tmp_path):
-    from torchrl_hybrid.trainers.hybrid import VARIANTS
-    from torchrl_hybrid.trainers.taxi import train_taxi
+    from torchrl_hybrid.families.gym import train_gym
+    from torchrl_hybrid.variants import VARIANTS
 
     with DeviceRuleCheck() as check:
         for v in VARIANTS:
-            train_taxi(_taxi(tmp_path / v, variant=v, total_frames=320))
-        s = train_taxi(_taxi(tmp_path / "hybrid_dual", variant="hybrid_dual", total_frames=640, resume=True))
+            train_gym(_taxi(tmp_path / v, variant=v, total_frames=320))
+        s = train_gym(_taxi(tmp_path / "hybrid_dual", variant="hybrid_dual", total_frames=640, resume=True))
     assert s["resumed_from_frames"] == 320 and s["frames"] == 640
     _assert_clean(check, 7 * 320 // 32, 60, "Taxi, every variant, then a resume")
 
 
 def test_cartpole_hybrid_keeps_the_device_rules(tmp_path):
-    from torchrl_hybrid.trainers.taxi import train_taxi
+    from torchrl_hybrid.families.gym import train_gym
 
     cart = {
         "env": {"env_id": "CartPole-v1", "num_envs": 4, "max_episode_steps": 50},
@@ -137,9 +137,9 @@ def test_cartpole_hybrid_keeps_the_device_rules(tmp_path):
         "logger": {"log_every_frames": 200, "eval_episodes": 2, "final_eval_episodes": 2, "progress_bar": False},
     }
     demo = {"rho": "uniform", "form": "trajectories", "num_trajectories": 2}
-    train_taxi(_taxi(tmp_path / "expert", variant="a2c", total_frames=400, device="cpu", demo=demo, **cart))
+    train_gym(_taxi(tmp_path / "expert", variant="a2c", total_frames=400, device="cpu", demo=demo, **cart))
     with DeviceRuleCheck() as check:
-        s = train_taxi(
+        s = train_gym(
             _taxi(
                 tmp_path / "hybrid",
                 variant="hybrid_dual",
@@ -164,7 +164,7 @@ def _atari(tmp, **kw):
 @pytest.fixture(scope="module")
 def atari_demos(tmp_path_factory):
     pytest.importorskip("ale_py")
-    from torchrl_hybrid.trainers.atari import record_demos, train_atari
+    from torchrl_hybrid.families.atari import record_demos, train_atari
 
     tmp = tmp_path_factory.mktemp("standin_pong")
     train_atari(_atari(tmp / "expert", variant="a2c", device="cpu"))
@@ -197,7 +197,7 @@ ATARI_UPDATES = 256 // 4 // (2 * 4)  # total_frames / frame skip / frames per ba
     ],
 )
 def test_atari_variants_keep_the_device_rules(atari_demos, tmp_path, variant, kw):
-    from torchrl_hybrid.trainers.atari import train_atari
+    from torchrl_hybrid.families.atari import train_atari
 
     if variant != "a2c":
         kw = {
@@ -212,7 +212,7 @@ def test_atari_variants_keep_the_device_rules(atari_demos, tmp_path, variant, kw
 
 def test_atari_resume_recording_and_evaluation_keep_the_device_rules(atari_demos, tmp_path):
     from torchrl_hybrid.experts import load_expert
-    from torchrl_hybrid.trainers.atari import evaluate_atari, record_demos, train_atari
+    from torchrl_hybrid.families.atari import evaluate_atari, record_demos, train_atari
 
     demo = {"path": str(atari_demos / "demos")}
     with DeviceRuleCheck() as check:
@@ -248,7 +248,7 @@ def test_atari_worker_collectors_keep_the_device_rules_and_the_learners_weights(
     learner's weights reach them, so each batch's log-probabilities are the learner's own."""
     from tensordict import TensorDict
 
-    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.families.atari import build_atari
     from torchrl_hybrid.trainers.run import finish_run
 
     seen = []
@@ -353,7 +353,7 @@ def test_random_state_includes_every_cuda_generator(monkeypatch):
 
 def test_an_atari_checkpoint_restores_the_random_state(tmp_path):
     pytest.importorskip("ale_py")
-    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.families.atari import build_atari
     from torchrl_hybrid.trainers.run import close_run
 
     run = build_atari(_atari(tmp_path, variant="a2c", device="cpu", logger={"checkpoint": True}))
@@ -415,10 +415,10 @@ def test_expert_samplers_read_one_entry_not_the_whole_buffer(kind):
 
 
 def test_the_trainer_keeps_no_per_update_log_and_the_curve_reads_the_device_once_per_row(tmp_path):
+    from torchrl_hybrid.families.gym import build_gym
     from torchrl_hybrid.trainers.run import finish_run
-    from torchrl_hybrid.trainers.taxi import build_taxi
 
-    run = build_taxi(_taxi(tmp_path, device="cpu", total_frames=640, logger={"log_every_frames": 320}))
+    run = build_gym(_taxi(tmp_path, device="cpu", total_frames=640, logger={"log_every_frames": 320}))
     run.trainer.train()
     finish_run(run)
     updates = 640 // 32
@@ -471,12 +471,12 @@ def test_the_compiled_cnn_runs_and_matches_the_plain_one():
 
 
 def test_device_auto_keeps_tabular_and_small_mlp_runs_on_the_cpu(tmp_path):
-    from torchrl_hybrid.trainers.atari import build_atari
+    from torchrl_hybrid.families.atari import build_atari
+    from torchrl_hybrid.families.gym import build_gym
     from torchrl_hybrid.trainers.run import close_run
-    from torchrl_hybrid.trainers.taxi import build_taxi
 
     with DeviceRuleCheck() as check:  # a machine with a GPU
-        run = build_taxi(_taxi(tmp_path / "taxi", device="auto"))
+        run = build_gym(_taxi(tmp_path / "taxi", device="auto"))
         close_run(run)
         assert run.device.type == "cpu" and next(run.actor.parameters()).device.type == "cpu"
         if pytest.importorskip("ale_py"):
@@ -488,7 +488,7 @@ def test_device_auto_keeps_tabular_and_small_mlp_runs_on_the_cpu(tmp_path):
 def test_a_checkpoint_from_before_the_random_state_resumes_with_a_warning(tmp_path, monkeypatch):
     """Checkpoints written before RandomStateHook existed lack only that component: they
     resume (not bit-exactly, said in a warning)."""
-    import torchrl_hybrid.trainers.taxi as taxi
+    import torchrl_hybrid.families.gym as taxi
 
     cart = {
         "env": {"env_id": "CartPole-v1", "num_envs": 4, "max_episode_steps": 50},
@@ -502,9 +502,9 @@ def test_a_checkpoint_from_before_the_random_state_resumes_with_a_warning(tmp_pa
     }
     with monkeypatch.context() as m:  # a checkpoint as the code before this hook wrote it
         m.setattr(taxi.GymFamily, "register_late_hooks", lambda self, run: None)
-        taxi.train_taxi(_taxi(tmp_path, total_frames=400, **cart))
+        taxi.train_gym(_taxi(tmp_path, total_frames=400, **cart))
     with pytest.warns(UserWarning, match="written before checkpoints held the random state"):
-        s = taxi.train_taxi(_taxi(tmp_path, total_frames=800, resume=True, **cart))
+        s = taxi.train_gym(_taxi(tmp_path, total_frames=800, resume=True, **cart))
     assert s["resumed_from_frames"] == 400 and s["frames"] == 800
 
 
@@ -521,10 +521,10 @@ def test_a_checkpoint_from_before_the_random_state_resumes_with_a_warning(tmp_pa
     ],
 )
 def test_the_balance_label_and_ppo_options_keep_the_device_rules(tmp_path, kw):
-    from torchrl_hybrid.trainers.taxi import train_taxi
+    from torchrl_hybrid.families.gym import train_gym
 
     with DeviceRuleCheck() as check:
-        s = train_taxi(_taxi(tmp_path, **kw))
+        s = train_gym(_taxi(tmp_path, **kw))
     assert s["frames"] == 640
     steps = 640 // 32 * (16 if kw.get("rl") == "ppo" else 1)  # PPO: 4 epochs x 4 minibatches per batch
     _assert_clean(check, steps, 40, f"Taxi {kw} (per optimisation step)")

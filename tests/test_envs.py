@@ -3,7 +3,7 @@ import pytest
 import torch
 from torchrl.collectors import Collector
 
-from torchrl_hybrid.envs import TabularEnv, TabularModel, make_toy_text_env
+from torchrl_hybrid.envs import TabularEnv, TabularModel, make_gym_env
 
 
 def test_tabular_model_matches_gymnasium_on_every_state_action(taxi):
@@ -49,8 +49,8 @@ def test_start_distribution_matches_gymnasium(taxi):
 
 
 def test_gym_and_tabular_backends_present_the_same_interface():
-    tab = make_toy_text_env(num_envs=2, backend="tabular", seed=0)
-    gy = make_toy_text_env(num_envs=2, backend="gym", seed=0)
+    tab = make_gym_env(num_envs=2, backend="tabular", seed=0)
+    gy = make_gym_env(num_envs=2, backend="gym", seed=0)
     for env in (tab, gy):
         td = env.rollout(4, break_when_any_done=False)
         assert td["observation"].shape == (2, 4) and td["observation"].dtype == torch.long
@@ -60,7 +60,7 @@ def test_gym_and_tabular_backends_present_the_same_interface():
 
 def test_unknown_backend_and_env_without_table():
     with pytest.raises(ValueError, match="backend"):
-        make_toy_text_env(backend="fast")
+        make_gym_env(backend="fast")
     with pytest.raises(ValueError, match="no transition table"):
         TabularModel.from_gym("CartPole-v1")
 
@@ -68,7 +68,7 @@ def test_unknown_backend_and_env_without_table():
 def test_collected_pairs_are_true_transitions_even_across_resets(taxi):
     """("next", "observation") is the real successor, never the reset state."""
     model, _, _ = taxi
-    env = make_toy_text_env(num_envs=8, max_episode_steps=5, seed=0)
+    env = make_gym_env(num_envs=8, max_episode_steps=5, seed=0)
     collector = Collector(env, None, frames_per_batch=400, total_frames=400)
     batch = next(iter(collector))
     s, a, s2 = batch["observation"], batch["action"], batch["next", "observation"]

@@ -14,7 +14,7 @@ from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cud
 from tensordict import TensorDict
 
 from torchrl_hybrid.data import load_demos, save_demos
-from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
+from torchrl_hybrid.families.gym import config_from_dict, train_gym
 from torchrl_hybrid.utils.files import check_memmap_folder, prepare_out_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,18 +78,18 @@ def test_demos_are_not_written_over_other_demos(tmp_path):
 
 
 def test_finished_run_is_not_overwritten_unless_asked(tmp_path):
-    first = train_taxi(tiny(tmp_path))
+    first = train_gym(tiny(tmp_path))
     model = (tmp_path / "model.pt").read_bytes()
     with pytest.raises(ValueError, match=r"holds a finished run \(summary.json, model.pt, metrics.csv"):
-        train_taxi(tiny(tmp_path, seed=1))
+        train_gym(tiny(tmp_path, seed=1))
     assert (tmp_path / "model.pt").read_bytes() == model
     assert json.loads((tmp_path / "summary.json").read_text())["seed"] == first["seed"] == 0
-    s = train_taxi(tiny(tmp_path, seed=1, overwrite=True))
+    s = train_gym(tiny(tmp_path, seed=1, overwrite=True))
     assert s["seed"] == 1 and json.loads((tmp_path / "summary.json").read_text())["seed"] == 1
 
 
 def test_resume_over_results_without_a_checkpoint_is_refused(tmp_path):
-    train_taxi(
+    train_gym(
         tiny(
             tmp_path,
             logger={
@@ -102,23 +102,23 @@ def test_resume_over_results_without_a_checkpoint_is_refused(tmp_path):
         )
     )
     with pytest.raises(ValueError, match="resume=true but .* has no checkpoint/ to resume from"):
-        train_taxi(tiny(tmp_path, resume=True, total_frames=1280))
+        train_gym(tiny(tmp_path, resume=True, total_frames=1280))
     with pytest.raises(ValueError, match="contradict"):
-        train_taxi(tiny(tmp_path, resume=True, overwrite=True))
+        train_gym(tiny(tmp_path, resume=True, overwrite=True))
 
 
 def test_a_second_run_on_a_folder_in_use_is_refused(tmp_path):
     with prepare_out_dir(tmp_path / "run"):
         with pytest.raises(ValueError, match="is in use by another run"):
-            train_taxi(tiny(tmp_path / "run"))
+            train_gym(tiny(tmp_path / "run"))
     assert not (tmp_path / "run" / "metrics.csv").exists()
-    assert train_taxi(tiny(tmp_path / "run"))["frames"] == 640  # free again once the first run let go
+    assert train_gym(tiny(tmp_path / "run"))["frames"] == 640  # free again once the first run let go
 
 
 def test_taxi_resumes_and_refuses_changed_settings(tmp_path, capsys):
-    train_taxi(tiny(tmp_path))
+    train_gym(tiny(tmp_path))
     with pytest.raises(ValueError, match=r"other settings for \['optim.lr'\] \(optim.lr: 0.001 -> 0.01"):
-        train_taxi(tiny(tmp_path, resume=True, total_frames=1280, optim={"lr": 0.01}))
+        train_gym(tiny(tmp_path, resume=True, total_frames=1280, optim={"lr": 0.01}))
     capsys.readouterr()
     logger = {
         "log_every_frames": 320,
@@ -127,7 +127,7 @@ def test_taxi_resumes_and_refuses_changed_settings(tmp_path, capsys):
         "progress_bar": True,
         "backend": "csv",
     }
-    s = train_taxi(tiny(tmp_path, resume=True, total_frames=1280, logger=logger))
+    s = train_gym(tiny(tmp_path, resume=True, total_frames=1280, logger=logger))
     assert s["frames"] == 1280 and s["resumed_from_frames"] == 640
     bar = capsys.readouterr().err.split("continuing from 640 frames", 1)[1]
     assert "| 1280/1280 [" in bar  # the progress bar goes on from where the run resumed (640), not from 0
@@ -136,15 +136,15 @@ def test_taxi_resumes_and_refuses_changed_settings(tmp_path, capsys):
 
 
 def test_resume_refuses_a_damaged_checkpoint_or_missing_settings(tmp_path):
-    train_taxi(tiny(tmp_path))
+    train_gym(tiny(tmp_path))
     (tmp_path / "config.json").rename(tmp_path / "config.json.bak")
     with pytest.raises(ValueError, match="has no config.json beside it"):
-        train_taxi(tiny(tmp_path, resume=True, total_frames=1280))
+        train_gym(tiny(tmp_path, resume=True, total_frames=1280))
     (tmp_path / "config.json.bak").rename(tmp_path / "config.json")
     f = max((tmp_path / "checkpoint").rglob("*.memmap"), key=lambda p: p.stat().st_size)
     f.write_bytes(f.read_bytes()[:-8])
     with pytest.raises(ValueError, match=r"\.memmap holds .* bytes but .* the file is truncated"):
-        train_taxi(tiny(tmp_path, resume=True, total_frames=1280))
+        train_gym(tiny(tmp_path, resume=True, total_frames=1280))
 
 
 def test_a_killed_run_resumes_from_its_checkpoint(tmp_path):
@@ -182,18 +182,18 @@ def test_a_run_killed_while_publishing_its_checkpoint_resumes_from_the_previous_
     # TorchRL writes a checkpoint into .checkpoint.stage-*, moves the old one to
     # .checkpoint.backup-*, then the stage into place: the state a kill leaves between
     # the two renames, with a half-written stage beside it
-    train_taxi(tiny(tmp_path))
+    train_gym(tiny(tmp_path))
     (tmp_path / "checkpoint").rename(tmp_path / ".checkpoint.backup-0123")
     (tmp_path / ".checkpoint.stage-4567" / "components").mkdir(parents=True)
-    s = train_taxi(tiny(tmp_path, resume=True, total_frames=1280))
+    s = train_gym(tiny(tmp_path, resume=True, total_frames=1280))
     assert s["frames"] == 1280 and s["resumed_from_frames"] == 640
 
 
 @pytest.mark.parametrize("kw", [{}, {"loss": {"bc_start_frames": 480}}])
 def test_taxi_resume_is_bit_exact(tmp_path, kw):
-    straight = train_taxi(tiny(tmp_path / "straight", total_frames=1280, **kw))
-    train_taxi(tiny(tmp_path / "pieces", total_frames=640, **kw))
-    resumed = train_taxi(tiny(tmp_path / "pieces", total_frames=1280, resume=True, **kw))
+    straight = train_gym(tiny(tmp_path / "straight", total_frames=1280, **kw))
+    train_gym(tiny(tmp_path / "pieces", total_frames=640, **kw))
+    resumed = train_gym(tiny(tmp_path / "pieces", total_frames=1280, resume=True, **kw))
     a = torch.load(tmp_path / "straight" / "model.pt", weights_only=False)
     b = torch.load(tmp_path / "pieces" / "model.pt", weights_only=False)
     for part in ("actor", "critic", "inverse_model"):
@@ -211,8 +211,8 @@ def test_taxi_resume_is_bit_exact(tmp_path, kw):
 
 
 def test_a_truncated_checkpoint_manifest_is_named(tmp_path):
-    train_taxi(tiny(tmp_path))
+    train_gym(tiny(tmp_path))
     manifest = tmp_path / "checkpoint" / "manifest.json"
     manifest.write_text(manifest.read_text()[:40])
     with pytest.raises(ValueError, match=r"checkpoint/manifest.json: malformed checkpoint manifest"):
-        train_taxi(tiny(tmp_path, resume=True, total_frames=1280))
+        train_gym(tiny(tmp_path, resume=True, total_frames=1280))

@@ -14,7 +14,7 @@ from torchrl_hybrid.data import EXPERT_ACTION_KEY  # noqa: E402
 from torchrl_hybrid.data.minari import load_minari_demos  # noqa: E402
 from torchrl_hybrid.envs import TabularModel  # noqa: E402
 from torchrl_hybrid.experts import optimal_policy  # noqa: E402
-from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi  # noqa: E402
+from torchrl_hybrid.families.gym import config_from_dict, train_gym  # noqa: E402
 
 
 def _record(env_id: str, dataset_id: str, policy, episodes: int, max_steps: int):
@@ -94,18 +94,18 @@ def test_the_taxi_agent_learns_from_a_minari_dataset(cache, tmp_path):
             "logger": {"log_every_frames": 320, "eval_episodes": 8, "final_eval_episodes": 8, "progress_bar": False},
         }
     )
-    s = train_taxi(cfg)
+    s = train_gym(cfg)
     assert s["frames"] == 640 and s["idm_accuracy_expert"] is None  # no true actions: nothing to score against
     # demos recorded on another env are refused, and so are two demo sources at once
     _record("CliffWalking-v1", "cliff/random-v0", lambda s: 0, 1, 20)
     with pytest.raises(ValueError, match="demos are for CliffWalking-v1, this run plays Taxi-v4|states outside"):
-        train_taxi(
+        train_gym(
             config_from_dict(
                 {"out_dir": str(tmp_path / "x"), "total_frames": 640, "demo": {"minari": "cliff/random-v0"}}
             )
         )
     with pytest.raises(ValueError, match="choose one demo source"):
-        train_taxi(
+        train_gym(
             config_from_dict(
                 {
                     "out_dir": str(tmp_path / "y"),
@@ -130,5 +130,5 @@ def test_cartpole_hybrid_from_a_minari_dataset(cache, tmp_path):
             "logger": {"log_every_frames": 400, "eval_episodes": 2, "final_eval_episodes": 2, "progress_bar": False},
         }
     )
-    s = train_taxi(cfg)
+    s = train_gym(cfg)
     assert s["frames"] == 800 and s["optimal_return"] is None  # no expert policy to evaluate

@@ -7,7 +7,7 @@ from tensordict import TensorDict
 
 from torchrl_hybrid.modules import DualInverseDynamics, MLPInverseDynamics, OneHotEncoder, make_tabular_actor_critic
 from torchrl_hybrid.objectives import DualInverseDynamicsLoss, ExpertBCLoss, InverseDynamicsLoss
-from torchrl_hybrid.trainers import VARIANTS, make_hybrid_loss
+from torchrl_hybrid.variants import VARIANTS, make_hybrid_loss
 
 
 def transitions(n=12, S=7, A=4):

@@ -7,12 +7,12 @@ import pytest
 import torch
 from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
+from torchrl_hybrid.families.gym import GymConfig, GymFamily, build_gym, config_from_dict, train_gym
 from torchrl_hybrid.trainers.run import EnvFamily, Run, build_run, train_run
-from torchrl_hybrid.trainers.taxi import GymFamily, TaxiConfig, build_taxi, config_from_dict, train_taxi
 from torchrl_hybrid.utils.process import configure_worker
 
 
-def tiny(out, **top) -> TaxiConfig:
+def tiny(out, **top) -> GymConfig:
     d = {
         "total_frames": 640,
         "out_dir": str(out),
@@ -32,7 +32,7 @@ def test_a_new_env_family_plugs_in_by_overriding_one_step(tmp_path):
     class CountingFamily(GymFamily):
         def networks(self, cfg, variant, setup):
             nets = super().networks(cfg, variant, setup)
-            built.append((setup.n_actions, setup.extra["n_states"]))
+            built.append((setup.n_actions, setup.n_states))
             return nets
 
     s = train_run(tiny(tmp_path / "run"), CountingFamily())
@@ -50,7 +50,7 @@ def test_a_run_that_fails_to_build_closes_its_envs_and_releases_out_dir(tmp_path
 
     class FailingFamily(GymFamily):
         def networks(self, cfg, variant, setup):
-            opened.extend([setup.env, setup.extra["eval_env"]])
+            opened.extend([setup.env, setup.eval_env])
             raise RuntimeError("no networks today")
 
         def collector(self, cfg, setup, policy, device, total_steps):
@@ -63,7 +63,7 @@ def test_a_run_that_fails_to_build_closes_its_envs_and_releases_out_dir(tmp_path
 
 
 def test_build_taxi_gives_the_run_the_trainer_trains(tmp_path):
-    run = build_taxi(tiny(tmp_path / "run"))
+    run = build_gym(tiny(tmp_path / "run"))
     assert isinstance(run, Run) and run.inverse_model is not None and run.demos is not None
     run.trainer.train()
     assert run.trainer.collected_frames == 640
@@ -72,19 +72,19 @@ def test_build_taxi_gives_the_run_the_trainer_trains(tmp_path):
 
 def test_resume_takes_a_setting_added_since_the_checkpoint_as_its_default(tmp_path):
     out = tmp_path / "run"
-    train_taxi(tiny(out))
+    train_gym(tiny(out))
     saved = json.loads((out / "config.json").read_text())
     # a checkpoint written before these settings existed
     del saved["loss"]["bc_entropy_floor"], saved["optim"]["clip"], saved["mlp_layers"]
     (out / "config.json").write_text(json.dumps(saved))
-    s = train_taxi(tiny(out, total_frames=1280, resume=True))
+    s = train_gym(tiny(out, total_frames=1280, resume=True))
     assert s["resumed_from_frames"] == 640 and s["frames"] == 1280
     # a setting that differs from the saved one is still refused
     saved = json.loads((out / "config.json").read_text())
     saved["loss"]["bc_coeff"] = 3.0
     (out / "config.json").write_text(json.dumps(saved))
     with pytest.raises(ValueError, match=r"loss.bc_coeff: 3.0 -> 2.0"):
-        train_taxi(tiny(out, total_frames=1920, resume=True))
+        train_gym(tiny(out, total_frames=1920, resume=True))
 
 
 def test_library_calls_leave_the_process_settings_alone(tmp_path):
@@ -92,7 +92,7 @@ def test_library_calls_leave_the_process_settings_alone(tmp_path):
     want = 2 if before != 2 else 3
     torch.set_num_threads(want)
     try:
-        train_taxi(tiny(tmp_path / "run", threads=1))  # threads is for the recipes, not a library call
+        train_gym(tiny(tmp_path / "run", threads=1))  # threads is for the recipes, not a library call
         assert torch.get_num_threads() == want
         with pytest.warns(RuntimeWarning, match=r"asks for 1 torch thread\(s\) but runs in the calling process"):
             configure_worker(1)  # not a worker process of run_jobs: nothing changes, but it says so
@@ -103,7 +103,7 @@ def test_library_calls_leave_the_process_settings_alone(tmp_path):
 
 @pytest.mark.parametrize(
     "name, cls",
-    [("taxi", "TaxiConfig"), ("atari", "AtariConfig"), ("cartpole", "TaxiConfig"), ("atari_expert", "AtariConfig")],
+    [("taxi", "GymConfig"), ("atari", "AtariConfig"), ("cartpole", "GymConfig"), ("atari_expert", "AtariConfig")],
 )
 def test_recipe_configs_are_the_dataclass_schemas(name, cls):
     """Each default is written once: the recipes' YAML sets only out_dir (and a preset's
@@ -117,10 +117,11 @@ def test_recipe_configs_are_the_dataclass_schemas(name, cls):
     from omegaconf.errors import ValidationError
 
     from torchrl_hybrid.configs import register_configs
-    from torchrl_hybrid.trainers import atari, taxi
+    from torchrl_hybrid.families import atari
+    from torchrl_hybrid.families import gym as taxi
 
     register_configs()
-    schema = {"TaxiConfig": taxi.TaxiConfig, "AtariConfig": atari.AtariConfig}[cls]
+    schema = {"GymConfig": taxi.GymConfig, "AtariConfig": atari.AtariConfig}[cls]
     folder = str(Path(__file__).resolve().parents[1] / "recipes" / "config")
     with initialize_config_dir(config_dir=folder, version_base=None):
         cfg = compose(config_name=name)
@@ -145,11 +146,11 @@ def test_recipe_configs_are_the_dataclass_schemas(name, cls):
 def test_optim_is_torchrls_rmsprop_config_and_every_argument_reaches_the_optimiser(tmp_path):
     from torchrl.trainers.algorithms.configs.utils import RMSpropConfig
 
-    from torchrl_hybrid.trainers.run import OptimConfig
+    from torchrl_hybrid.trainers.config import OptimConfig
 
     assert issubclass(OptimConfig, RMSpropConfig)
     cfg = tiny(tmp_path / "run", optim={"lr": 3e-4, "momentum": 0.5, "centered": True})
-    run = build_taxi(cfg)
+    run = build_gym(cfg)
     group = run.trainer.optimizer.param_groups[0]
     assert isinstance(run.trainer.optimizer, torch.optim.RMSprop)
     assert (group["lr"], group["momentum"], group["centered"], group["eps"]) == (3e-4, 0.5, True, 1e-5)
@@ -157,7 +158,7 @@ def test_optim_is_torchrls_rmsprop_config_and_every_argument_reaches_the_optimis
     run.lock.close()
     with pytest.raises(ValueError, match="optim._target_='torch.optim.Adam'"):
         tiny(tmp_path / "x", optim={"_target_": "torch.optim.Adam"}).validate()
-    from torchrl_hybrid.trainers.batched import train_taxi_batched
+    from torchrl_hybrid.families.gym_batched import train_taxi_batched
 
     with pytest.raises(ValueError, match=r"plain RMSprop .*'momentum': 0.5.*engine=torchrl"):
         train_taxi_batched([tiny(tmp_path / "y", optim={"momentum": 0.5})])
@@ -181,7 +182,7 @@ def test_configure_process_quiets_torchrl_even_before_torchrl_is_imported():
 def test_lr_warmup_raises_the_rate_linearly_then_holds_it(tmp_path, warmup, expected):
     """optim.warmup_frames: the rate after 640 frames is 640/warmup of its value (capped at 1);
     None without init_from means no warm-up (the authors' schedule)."""
-    run = build_taxi(tiny(tmp_path / "run", optim={"warmup_frames": warmup}))
+    run = build_gym(tiny(tmp_path / "run", optim={"warmup_frames": warmup}))
     try:
         run.trainer.train()
         lrs = [g["lr"] for g in run.trainer.optimizer.param_groups]
@@ -190,7 +191,7 @@ def test_lr_warmup_raises_the_rate_linearly_then_holds_it(tmp_path, warmup, expe
         run.lock.close()
         run.collector.shutdown()
     with pytest.raises(ValueError, match="optim.warmup_frames must be >= 0"):
-        build_taxi(tiny(tmp_path / "bad", optim={"warmup_frames": -1}))
+        build_gym(tiny(tmp_path / "bad", optim={"warmup_frames": -1}))
 
 
 def test_lr_warmup_hook_scale():
@@ -204,8 +205,8 @@ def test_lr_warmup_hook_scale():
 
 
 def test_taxi_init_from_warm_starts_and_refuses_the_batched_engine(tmp_path):
-    first = train_taxi(tiny(tmp_path / "first"))
-    s = train_taxi(tiny(tmp_path / "warm", init_from=str(tmp_path / "first" / "model.pt")))
+    first = train_gym(tiny(tmp_path / "first"))
+    s = train_gym(tiny(tmp_path / "warm", init_from=str(tmp_path / "first" / "model.pt")))
     assert s["total_frames_seen"] == first["frames"] + s["frames"] == 1280
     with pytest.raises(ValueError, match="init_from needs engine=torchrl"):
         tiny(tmp_path / "b", engine="batched", init_from=str(tmp_path / "first" / "model.pt")).validate()
@@ -215,7 +216,7 @@ def test_taxi_init_from_warm_starts_and_refuses_the_batched_engine(tmp_path):
         init_from=str(tmp_path / "first" / "model.pt"),
     )
     with pytest.raises(ValueError, match=r"other settings for \['env.env_id', 'env.kwargs'\]"):
-        train_taxi(other)
+        train_gym(other)
 
 
 def _stub_trainer(parts, params, lr=1.0):
@@ -246,7 +247,7 @@ def test_per_term_clip_keeps_the_bc_gradient_that_a_global_clip_scales_down():
     clipped apart, each term moves the weight by up to 1 and the BC term keeps its whole step."""
     from tensordict import TensorDict
 
-    from torchrl_hybrid.trainers.hybrid import ClippedOptimizationStepper
+    from torchrl_hybrid.trainers.trainer import ClippedOptimizationStepper
 
     moves = {}
     for clip in ("global", "per_term"):
@@ -268,7 +269,7 @@ def test_extra_bc_and_inverse_model_updates_per_batch(tmp_path):
     """loss.bc_updates=2, loss.idm_updates=1: the policy's parameters take 1 + 2 optimiser steps per
     batch (the main one, then BC alone twice on fresh expert batches), the inverse model's 1 + 1; the
     RL loss is never repeated."""
-    run = build_taxi(tiny(tmp_path, **{"loss": {"bc_updates": 2, "idm_updates": 1}}))
+    run = build_gym(tiny(tmp_path, **{"loss": {"bc_updates": 2, "idm_updates": 1}}))
     run.trainer.train()
     updates = 640 // run.cfg.frames_per_batch
     opt = run.trainer.optimizer
@@ -295,7 +296,7 @@ def test_ppo_base_runs_epochs_of_minibatches_each_paired_with_expert_pairs(tmp_p
     from torchrl.objectives import ClipPPOLoss
 
     cfg = tiny(tmp_path, rl="ppo", ppo={"epochs": 2, "minibatches": 4})
-    run = build_taxi(cfg)
+    run = build_gym(cfg)
     assert isinstance(run.loss.rl_loss, ClipPPOLoss) and run.trainer.optim_steps_per_batch == 8
     seen = []
     run.trainer.register_op("process_optim_batch", lambda td: seen.append(td) or td)  # after the expert pairing

@@ -31,7 +31,12 @@ def test_a_compare_rerun_with_other_settings_is_refused_then_rerun_with_overwrit
         base=FROZEN, variants=["a2c"], seeds=[0], out_dir=str(tmp_path), workers=1, command="cmd one"
     )
     run_gym_compare(cfg)
-    assert json.loads((tmp_path / STUDY_FILE).read_text()) == {"kind": "gym_compare"}
+    record = json.loads((tmp_path / STUDY_FILE).read_text())
+    assert record["kind"] == "gym_compare"
+    (session,) = record["sessions"]  # where the runs trained: commit, command, machine
+    assert {"commit", "command", "date", "machine"} <= set(session)
+    assert {"cpu", "cores", "torch", "torch_threads"} <= set(session["machine"])
+    assert "Made at commit" in (tmp_path / "README.md").read_text()
     before = _snapshot(tmp_path)
     changed = GymCompareConfig(
         base={**FROZEN, "optim": {"lr": 0.01}},
@@ -62,7 +67,7 @@ def test_a_compare_rerun_with_other_settings_is_refused_then_rerun_with_overwrit
 
 def test_an_atari_compare_refuses_finished_runs_of_another_base_setting(tmp_path):
     from torchrl_hybrid.experiments.atari_compare import CompareConfig, run_compare
-    from torchrl_hybrid.trainers.atari import atari_config
+    from torchrl_hybrid.families.atari import atari_config
 
     run = tmp_path / "Pong" / "a2c_s0"
     run.mkdir(parents=True)

@@ -10,13 +10,13 @@ import torch
 from conftest import TEST_DEVICE  # the `device` fixture's value: cpu in CI, cuda under make test-cuda
 
 from torchrl_hybrid.data import save_demos
-from torchrl_hybrid.trainers import VARIANTS
-from torchrl_hybrid.trainers.taxi import TaxiConfig, config_from_dict, train_taxi
+from torchrl_hybrid.families.gym import GymConfig, config_from_dict, train_gym
+from torchrl_hybrid.variants import VARIANTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def tiny(tmp_path, **kw) -> TaxiConfig:
+def tiny(tmp_path, **kw) -> GymConfig:
     d = {
         "total_frames": 640,
         "out_dir": str(tmp_path / kw.get("variant", "run")),
@@ -43,7 +43,7 @@ def tiny(tmp_path, **kw) -> TaxiConfig:
 @pytest.mark.parametrize("variant", list(VARIANTS))
 def test_every_variant_runs_and_writes_its_outputs(tmp_path, variant):
     cfg = tiny(tmp_path, variant=variant)
-    summary = train_taxi(cfg)
+    summary = train_gym(cfg)
     out = Path(cfg.out_dir)
     for f in ("metrics.csv", "summary.json", "learning_curve.png", "model.pt", "checkpoint"):
         assert (out / f).exists(), f
@@ -59,7 +59,7 @@ def test_every_variant_runs_and_writes_its_outputs(tmp_path, variant):
 
 
 def test_options_noise_rank_curriculum_and_gym_backend(tmp_path):
-    s = train_taxi(
+    s = train_gym(
         tiny(
             tmp_path,
             rank=1,
@@ -83,14 +83,14 @@ def test_hybrid_never_reads_true_expert_actions(tmp_path):
     """Same seed, demos with and without their true actions: identical policy."""
     demos_ok = tmp_path / "ok"
     cfg = tiny(tmp_path, **{"demo.save_path": str(demos_ok)})
-    train_taxi(cfg)
+    train_gym(cfg)
     from tensordict import TensorDict
 
     # without the true actions (scrambled ones are refused on load: each (s, a, s') is checked against P)
     demos = TensorDict.load_memmap(demos_ok).clone().exclude("expert_action")
     save_demos(demos, tmp_path / "scrambled")
-    s1 = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "a"), **{"demo.path": str(demos_ok)}))
-    s2 = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "b"), **{"demo.path": str(tmp_path / "scrambled")}))
+    s1 = train_gym(tiny(tmp_path, out_dir=str(tmp_path / "a"), **{"demo.path": str(demos_ok)}))
+    s2 = train_gym(tiny(tmp_path, out_dir=str(tmp_path / "b"), **{"demo.path": str(tmp_path / "scrambled")}))
     w1 = torch.load(tmp_path / "a" / "model.pt", weights_only=False)["actor"]
     w2 = torch.load(tmp_path / "b" / "model.pt", weights_only=False)["actor"]
     assert all(torch.equal(w1[k], w2[k]) for k in w1)
@@ -124,28 +124,28 @@ def test_hybrid_never_reads_true_expert_actions(tmp_path):
 )
 def test_bad_config_is_refused_with_a_clear_message(tmp_path, kw, match):
     with pytest.raises(ValueError, match=match):
-        train_taxi(tiny(tmp_path, **kw))
+        train_gym(tiny(tmp_path, **kw))
 
 
 def test_bad_demo_files(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
-        train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "nope")}))
+        train_gym(tiny(tmp_path, **{"demo.path": str(tmp_path / "nope")}))
     from tensordict import TensorDict
 
     save_demos(
         TensorDict({"observation": torch.rand(4, 3), ("next", "observation"): torch.rand(4, 3)}, [4]), tmp_path / "img"
     )
     with pytest.raises(ValueError, match="observation shape"):
-        train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "img")}))
+        train_gym(tiny(tmp_path, **{"demo.path": str(tmp_path / "img")}))
     nan = TensorDict({"observation": torch.zeros(4), ("next", "observation"): torch.ones(4)}, [4])
     nan["observation"][2] = float("nan")
     save_demos(nan, tmp_path / "nan")
     with pytest.raises(ValueError, match="NaN"):
-        train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "nan")}))
+        train_gym(tiny(tmp_path, **{"demo.path": str(tmp_path / "nan")}))
     floats = TensorDict({"observation": torch.zeros(4), ("next", "observation"): torch.ones(4)}, [4])
     save_demos(floats, tmp_path / "floats")
     with pytest.raises(ValueError, match="dtype"):
-        train_taxi(tiny(tmp_path, **{"demo.path": str(tmp_path / "floats")}))
+        train_gym(tiny(tmp_path, **{"demo.path": str(tmp_path / "floats")}))
     with pytest.raises(ValueError, match="unknown config key"):
         config_from_dict({"demo": {"etaa": 0.1}})
 
@@ -175,9 +175,9 @@ def test_recipe_command_line(tmp_path):
 
 @pytest.mark.slow
 def test_hybrid_dual_learns_taxi_with_the_default_budget(tmp_path):
-    cfg = tiny(tmp_path, total_frames=TaxiConfig().total_frames, seed=0)
+    cfg = tiny(tmp_path, total_frames=GymConfig().total_frames, seed=0)
     cfg.logger.final_eval_episodes = 300
-    s = train_taxi(cfg)
+    s = train_gym(cfg)
     assert s["final_return"] >= 7.0
     assert s["idm_accuracy_expert"] >= 0.80
 
@@ -185,14 +185,14 @@ def test_hybrid_dual_learns_taxi_with_the_default_budget(tmp_path):
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 @pytest.mark.parametrize("variant", ["hybrid_dual", "il"])
 def test_taxi_trains_on_cuda_and_its_model_loads_on_the_cpu(tmp_path, variant):
-    s = train_taxi(tiny(tmp_path, variant=variant, device="cuda"))
+    s = train_gym(tiny(tmp_path, variant=variant, device="cuda"))
     assert s["frames"] == 640
     state = torch.load(tmp_path / variant / "model.pt", map_location="cpu", weights_only=False)["actor"]
     assert all(v.device.type == "cpu" for v in state.values())
 
 
 def test_taxi_runs_with_an_explicit_cpu_device(tmp_path):
-    s = train_taxi(tiny(tmp_path, variant="hybrid_dual", device="cpu", **{"demo.rho": "visited"}))
+    s = train_gym(tiny(tmp_path, variant="hybrid_dual", device="cpu", **{"demo.rho": "visited"}))
     assert s["frames"] == 640 and s["config"]["device"] == "cpu"
 
 
@@ -203,17 +203,17 @@ def test_demos_with_impossible_transitions_are_refused(tmp_path, taxi):
     demos = tabular_state_pairs(model, policy)
     save_demos(demos, tmp_path / "ok")
     assert (
-        train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "a"), **{"demo.path": str(tmp_path / "ok")}))["frames"] == 640
+        train_gym(tiny(tmp_path, out_dir=str(tmp_path / "a"), **{"demo.path": str(tmp_path / "ok")}))["frames"] == 640
     )
     shuffled = demos.clone()
     shuffled["next", "observation"] = shuffled["next", "observation"][torch.randperm(len(demos))]
     save_demos(shuffled, tmp_path / "shuffled")
     with pytest.raises(ValueError, match=r"pairs are not transitions of Taxi-v4 under any action"):
-        train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "b"), **{"demo.path": str(tmp_path / "shuffled")}))
+        train_gym(tiny(tmp_path, out_dir=str(tmp_path / "b"), **{"demo.path": str(tmp_path / "shuffled")}))
 
 
 def test_robust_bc_options_run_in_the_pipeline(tmp_path):
-    s = train_taxi(
+    s = train_gym(
         tiny(
             tmp_path,
             **{
@@ -230,14 +230,14 @@ def test_robust_bc_options_run_in_the_pipeline(tmp_path):
     rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
     assert "bc_kept" in rows[-1] and "bc_policy_entropy" in rows[-1]
     with pytest.raises(ValueError, match=r"loss.bc_labels must be one of \('argmax', 'soft'\), got 'hard'"):
-        train_taxi(tiny(tmp_path / "x", **{"loss.bc_labels": "hard"}))
+        train_gym(tiny(tmp_path / "x", **{"loss.bc_labels": "hard"}))
     assert not (tmp_path / "x").exists()  # refused before anything is written
     # the readiness switch with annealing: on once ready, then falling to 0 over 320 frames
-    s = train_taxi(tiny(tmp_path / "y", **{"loss.bc_anneal_frames": 320, "loss.bc_ready_accuracy": 0.01}))
+    s = train_gym(tiny(tmp_path / "y", **{"loss.bc_anneal_frames": 320, "loss.bc_ready_accuracy": 0.01}))
     rows = list(csv.DictReader((tmp_path / "y" / "run" / "metrics.csv").open()))
     assert s["frames"] == 640 and float(rows[-1]["loss_bc"]) == 0.0 and float(rows[1]["loss_bc"]) != 0.0
     # annealing: the BC weight in the log falls from bc_coeff at the switch-on to 0 by the end
-    s = train_taxi(tiny(tmp_path / "z", **{"loss.bc_start_frames": 64, "loss.bc_anneal_frames": 320}))
+    s = train_gym(tiny(tmp_path / "z", **{"loss.bc_start_frames": 64, "loss.bc_anneal_frames": 320}))
     rows = list(csv.DictReader((tmp_path / "z" / "run" / "metrics.csv").open()))
     assert s["frames"] == 640 and float(rows[-1]["loss_bc"]) == 0.0 and float(rows[1]["loss_bc"]) != 0.0
 
@@ -248,13 +248,13 @@ def test_frozenlake_8x8_through_env_kwargs_with_its_own_optimal_return(tmp_path)
         "env.kwargs": {"map_name": "8x8", "is_slippery": False},
         "env.max_episode_steps": 100,
     }
-    s = train_taxi(tiny(tmp_path, **kw))
+    s = train_gym(tiny(tmp_path, **kw))
     assert s["optimal_return"] == 1.0 and s["frames"] == 640  # the expert's own evaluation, not assumed
     assert s["config"]["env"]["kwargs"] == {"map_name": "8x8", "is_slippery": False}
     with pytest.raises(ValueError, match="does not end an episode.*expert_gamma"):
-        train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "g1"), **kw, **{"demo.expert_gamma": 1.0}))
+        train_gym(tiny(tmp_path, out_dir=str(tmp_path / "g1"), **kw, **{"demo.expert_gamma": 1.0}))
     with pytest.raises(ValueError, match="random"):  # slippery: random transitions, refused before training
-        train_taxi(
+        train_gym(
             tiny(
                 tmp_path,
                 out_dir=str(tmp_path / "slip"),
@@ -277,10 +277,10 @@ def test_vector_observations_cartpole_expert_checkpoint_demos_and_hybrid(tmp_pat
         "d": 16,
         "encoder.hidden": 16,
     }
-    expert = train_taxi(tiny(tmp_path, variant="a2c", out_dir=str(tmp_path / "expert"), **cp))
+    expert = train_gym(tiny(tmp_path, variant="a2c", out_dir=str(tmp_path / "expert"), **cp))
     assert expert["optimal_return"] is None and expert["idm_accuracy_expert"] is None
     ckpt = str(tmp_path / "expert" / "model.pt")
-    s = train_taxi(
+    s = train_gym(
         tiny(
             tmp_path,
             out_dir=str(tmp_path / "hybrid"),
@@ -300,7 +300,7 @@ def test_vector_observations_cartpole_expert_checkpoint_demos_and_hybrid(tmp_pat
     assert demos["observation"].shape[1:] == (4,) and int(demos["trajectory"].max()) == 3
     assert demos["expert_action"].dtype == torch.int64
     # the saved demos replace the expert
-    s2 = train_taxi(tiny(tmp_path, out_dir=str(tmp_path / "from_file"), **{**cp, "demo.path": str(tmp_path / "demos")}))
+    s2 = train_gym(tiny(tmp_path, out_dir=str(tmp_path / "from_file"), **{**cp, "demo.path": str(tmp_path / "demos")}))
     assert s2["optimal_return"] is None and s2["frames"] == 640
 
 
@@ -317,7 +317,7 @@ def test_vector_observations_cartpole_expert_checkpoint_demos_and_hybrid(tmp_pat
 def test_vector_observation_errors_name_the_fix(tmp_path, kw, match):
     cfg = tiny(tmp_path, **{"env.env_id": "CartPole-v1", "env.max_episode_steps": 200, "demo.rho": "uniform", **kw})
     with pytest.raises((ValueError, FileNotFoundError), match=match):
-        train_taxi(cfg)
+        train_gym(cfg)
 
 
 def _collected_with_current_weights(kind, tmp_path):
@@ -325,13 +325,13 @@ def _collected_with_current_weights(kind, tmp_path):
     change: the workers' copies are updated by TorchRL's weight update."""
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    from torchrl_hybrid.envs import make_toy_text_env
+    from torchrl_hybrid.envs import make_gym_env
+    from torchrl_hybrid.families.gym import make_collector
     from torchrl_hybrid.modules import make_tabular_actor_critic
-    from torchrl_hybrid.trainers.taxi import make_collector
 
     cfg = tiny(tmp_path, **{"collector.kind": kind, "collector.workers": 2, "env.num_envs": 4})
     actor, _ = make_tabular_actor_critic(500, 6)
-    collector = make_collector(cfg, make_toy_text_env(num_envs=4), actor, torch.device("cpu"))
+    collector = make_collector(cfg, make_gym_env(num_envs=4), actor, torch.device("cpu"))
     try:
         for i, batch in enumerate(collector):
             assert batch.numel() == cfg.frames_per_batch
@@ -349,7 +349,7 @@ def _collected_with_current_weights(kind, tmp_path):
 
 def test_multi_process_collection_uses_the_learners_weights(tmp_path):
     _collected_with_current_weights("multi_sync", tmp_path)
-    s = train_taxi(
+    s = train_gym(
         tiny(tmp_path, out_dir=str(tmp_path / "ms"), **{"collector.kind": "multi_sync", "collector.workers": 2})
     )
     assert s["frames"] == 640
@@ -392,12 +392,12 @@ def test_every_gym_preset_composes_and_runs_the_hybrid_with_its_expert(tmp_path,
     with initialize_config_dir(config_dir=folder, version_base=None):
         if expert == "a2c":
             cfg = compose(config_name=preset, overrides=tiny_run + ["variant=a2c", f"out_dir={tmp_path / 'expert'}"])
-            train_taxi(config_from_dict(OmegaConf.to_container(cfg, resolve=True)))
+            train_gym(config_from_dict(OmegaConf.to_container(cfg, resolve=True)))
             expert = str(tmp_path / "expert" / "model.pt")
         cfg = compose(config_name=preset, overrides=tiny_run + ([f"demo.expert={expert}"] if expert else []))
     d = OmegaConf.to_container(cfg, resolve=True)
     d.pop("hydra", None)
-    s = train_taxi(config_from_dict(d))
+    s = train_gym(config_from_dict(d))
     batch = 4 * d["loss"]["n_steps"]  # the collector's batches: whole ones, up to one past total_frames
     assert 400 <= s["frames"] < 400 + batch and s["variant"] == "hybrid_dual"
     assert s["optimal_return"] is not None and 0.0 <= s["idm_accuracy_expert"] <= 1.0

@@ -21,11 +21,11 @@ import tomllib
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from torchrl_hybrid.trainers import run as run_module
-from torchrl_hybrid.trainers.atari import AtariConfig, atari_config
-from torchrl_hybrid.trainers.batched import train_taxi_batched
-from torchrl_hybrid.trainers.run import LOGGER_PACKAGES, LOGGERS
-from torchrl_hybrid.trainers.taxi import TaxiConfig, config_from_dict, train_taxi
+from torchrl_hybrid.families.atari import AtariConfig, atari_config
+from torchrl_hybrid.families.gym import GymConfig, config_from_dict, train_gym
+from torchrl_hybrid.families.gym_batched import train_taxi_batched
+from torchrl_hybrid.trainers import config as run_module
+from torchrl_hybrid.trainers.config import LOGGER_PACKAGES, LOGGERS
 from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.files import RUN_FILES
 
@@ -40,7 +40,7 @@ SMALL = {
 }
 
 
-def small(out: Path, **groups) -> TaxiConfig:
+def small(out: Path, **groups) -> GymConfig:
     return config_from_dict(merge_dicts(SMALL, {"out_dir": str(out), **groups}))
 
 
@@ -75,7 +75,7 @@ def assert_names(err: Exception, name: str) -> None:
     assert re.search(rf"(?<![\w.]){re.escape(name)}(?![\w])", msg), f"{name}: {msg}"
 
 
-TAXI_NUMERIC = numeric_settings(TaxiConfig)
+TAXI_NUMERIC = numeric_settings(GymConfig)
 ATARI_NUMERIC = numeric_settings(AtariConfig)
 ANY_NUMBER = st.one_of(
     st.sampled_from(
@@ -197,7 +197,7 @@ def test_a_taxi_run_with_a_value_that_passes_validation_works(name, value, base)
             if cfg.engine == "batched":
                 summary = train_taxi_batched([cfg], plot=False)[0]
             else:
-                summary = train_taxi(cfg)
+                summary = train_gym(cfg)
         except ValueError as err:  # the env's own limits, e.g. the expert needs longer episodes
             assert_names(err, name)
             return
@@ -223,7 +223,7 @@ def test_known_bad_values_are_refused_before_training(tmp_path, groups, name):
     below). PPO minibatches of explorer transitions only, found the same way, are handled by the
     loss (tests/test_objectives.py)."""
     with pytest.raises(ValueError) as err:
-        train_taxi(small(tmp_path / "run", **groups))
+        train_gym(small(tmp_path / "run", **groups))
     assert_names(err.value, name)
     assert not (tmp_path / "run").exists()
 
@@ -235,18 +235,18 @@ def test_a_zero_demo_batch_is_refused_for_a_variant_that_clones_the_expert(tmp_p
         match=r"demo.batch_size=0: variant hybrid_dual clones the expert .* must be >= 1 "
         r"\(variant=a2c trains without demos\)",
     ):
-        train_taxi(small(tmp_path / "run", demo={"batch_size": 0, "rho": "uniform"}))
+        train_gym(small(tmp_path / "run", demo={"batch_size": 0, "rho": "uniform"}))
     small(tmp_path / "a2c", variant="a2c", demo={"batch_size": 0}).validate()  # no demos: nothing to refuse
     with pytest.raises(ValueError, match="demo.batch_size=0: variant hybrid_dual"):
         atari_config({"demo": {"batch_size": 0, "path": "demos/pong"}}).validate()
 
 
 def test_ints_and_bools_must_have_their_type_even_when_set_on_the_object():
-    cfg = TaxiConfig()
+    cfg = GymConfig()
     cfg.total_frames = 640.5
     with pytest.raises(ValueError, match=r"total_frames=640.5 must be an integer"):
         cfg.validate()
-    cfg = TaxiConfig()
+    cfg = GymConfig()
     cfg.loss.n_steps = 2.0
     with pytest.raises(ValueError, match=r"loss.n_steps=2.0 must be an integer"):
         cfg.validate()
@@ -270,7 +270,7 @@ def test_resume_of_a_finished_run_that_total_frames_does_not_extend_is_refused_a
     """It used to exit 0 and rewrite summary.json and model.pt (train_time_s 0.0, the config
     saying fewer frames than the run did)."""
     out = tmp_path / "run"
-    train_taxi(small(out))
+    train_gym(small(out))
     before = _snapshot(out)
     assert {"summary.json", "model.pt", "config.json", "metrics.csv"} <= set(before)
     for total in (64, 32):
@@ -279,16 +279,16 @@ def test_resume_of_a_finished_run_that_total_frames_does_not_extend_is_refused_a
             match=rf"the run in {re.escape(str(out))} is already at 64 frames; raise "
             rf"total_frames \(now {total}\) to train further",
         ):
-            train_taxi(small(out, total_frames=total, resume=True))
+            train_gym(small(out, total_frames=total, resume=True))
     assert _snapshot(out) == before
     # the same checkpoint without its summary (a run stopped after its last checkpoint): refused when loaded
     (out / "summary.json").unlink()
     del before["summary.json"]
     with pytest.raises(ValueError, match="is already at 64 frames; raise total_frames"):
-        train_taxi(small(out, total_frames=64, resume=True))
+        train_gym(small(out, total_frames=64, resume=True))
     assert _snapshot(out) == before
     # raising total_frames trains further, as before
-    assert train_taxi(small(out, total_frames=96, resume=True))["resumed_from_frames"] == 64
+    assert train_gym(small(out, total_frames=96, resume=True))["resumed_from_frames"] == 64
 
 
 def _recipe(name: str):
@@ -341,22 +341,22 @@ def test_an_out_dir_that_is_a_file_is_refused_in_one_line_before_hydra(tmp_path)
         assert train.out_dir_from_overrides(argv) == bad
     train.check_out_dir(["out_dir=outputs/x/${now:%H}", "seed=1"])  # interpolations are Hydra's to resolve
     with pytest.raises(ValueError, match="is inside .*afile, which is a file"):  # the library says the same
-        train_taxi(small(f / "run"))
+        train_gym(small(f / "run"))
 
 
 def test_an_unknown_env_id_is_refused_naming_the_setting(tmp_path):
     """It used to be gymnasium's NameNotFound traceback."""
     with pytest.raises(ValueError, match=r"env.env_id=NoSuchEnv-v0: Environment `NoSuchEnv` doesn't exist\.") as err:
-        train_taxi(small(tmp_path / "run", env={"env_id": "NoSuchEnv-v0"}))
+        train_gym(small(tmp_path / "run", env={"env_id": "NoSuchEnv-v0"}))
     assert_names(err.value, "env.env_id")
     with pytest.raises(ValueError, match=r"env.env_id=Taxi-v9: .*doesn't exist"):
         config_from_dict({"env": {"env_id": "Taxi-v9"}}).validate()
     # what only gym.make can judge (a module to import, keyword arguments) is re-said at env creation
     with pytest.raises(ValueError, match=r"env.env_id=nosuchmodule:Foo-v0 .*gymnasium cannot make it") as err:
-        train_taxi(small(tmp_path / "mod", env={"env_id": "nosuchmodule:Foo-v0"}))
+        train_gym(small(tmp_path / "mod", env={"env_id": "nosuchmodule:Foo-v0"}))
     assert "\n" not in str(err.value)
     with pytest.raises(ValueError, match=r"env.kwargs=\{'nope': 1\}: gymnasium cannot make it .*unexpected keyword"):
-        train_taxi(small(tmp_path / "kw", env={"kwargs": {"nope": 1}}))
+        train_gym(small(tmp_path / "kw", env={"kwargs": {"nope": 1}}))
 
 
 def test_every_logger_package_is_an_extra_that_make_test_installs():
@@ -365,7 +365,7 @@ def test_every_logger_package_is_an_extra_that_make_test_installs():
     for package in LOGGER_PACKAGES.values():
         assert extras[package] == [package]
     assert "hypothesis" in extras["test"]
-    assert '".[test,tensorboard]"' in (ROOT / "Makefile").read_text()
+    assert '".[test,lint,docs,tensorboard]"' in (ROOT / "Makefile").read_text()
 
 
 @pytest.mark.parametrize("backend", LOGGERS)
@@ -378,14 +378,14 @@ def test_each_logger_backend_runs_or_says_which_extra_to_install(tmp_path, backe
             match=rf"logger.backend={backend} needs the {package} package, which is not "
             rf"installed: pip install -e '\.\[{package}\]'",
         ):
-            train_taxi(small(tmp_path / "missing", logger={"backend": backend}))
+            train_gym(small(tmp_path / "missing", logger={"backend": backend}))
         assert not (tmp_path / "missing").exists()
         monkeypatch.undo()
         pytest.importorskip(package)
     if backend == "wandb":
         monkeypatch.setenv("WANDB_MODE", "offline")
     out = tmp_path / "run"
-    summary = train_taxi(small(out, logger={"backend": backend}))
+    summary = train_gym(small(out, logger={"backend": backend}))
     assert summary["frames"] == 64 and (out / "metrics.csv").exists()
     logged = [p.name for p in (out / "logs").rglob("*") if p.is_file()] if (out / "logs").exists() else []
     if backend == "none":

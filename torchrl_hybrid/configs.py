@@ -4,8 +4,8 @@ command-line setting's name and type against it.
 
 Stored (after :func:`register_configs`):
 
-- ``taxi_schema``: :class:`~torchrl_hybrid.trainers.taxi.TaxiConfig` (gymnasium envs);
-  ``atari_schema``: :class:`~torchrl_hybrid.trainers.atari.AtariConfig`;
+- ``gym_schema``: :class:`~torchrl_hybrid.families.gym.GymConfig` (gymnasium envs);
+  ``atari_schema``: :class:`~torchrl_hybrid.families.atari.AtariConfig`;
 - the groups the two share, one entry per env family, for configs of your own:
   ``loss/{taxi,atari}``, ``optim/{taxi,atari}``, ``logger/{gym,atari}``,
   ``demo/{gym,atari}``, ``env/{gym,atari}``.
@@ -29,17 +29,18 @@ def register_configs() -> None:
         return
     from hydra.core.config_store import ConfigStore
 
-    from torchrl_hybrid.trainers import atari, run, taxi
+    from torchrl_hybrid.families import atari, gym
+    from torchrl_hybrid.trainers import config as shared
 
     cs = ConfigStore.instance()
-    cs.store(name="taxi_schema", node=taxi.TaxiConfig)
+    cs.store(name="gym_schema", node=gym.GymConfig)
     cs.store(name="atari_schema", node=atari.AtariConfig)
     for group, entries in {
-        "loss": {"taxi": run.LossConfig, "atari": atari.AtariLossConfig},
-        "optim": {"taxi": run.OptimConfig, "atari": atari.AtariOptimConfig},
-        "logger": {"gym": taxi.GymLoggerConfig, "atari": atari.AtariLoggerConfig},
-        "demo": {"gym": taxi.GymDemoConfig, "atari": atari.AtariDemoConfig},
-        "env": {"gym": taxi.EnvConfig, "atari": atari.AtariEnvConfig},
+        "loss": {"taxi": shared.LossConfig, "atari": atari.AtariLossConfig},
+        "optim": {"taxi": shared.OptimConfig, "atari": atari.AtariOptimConfig},
+        "logger": {"gym": gym.GymLoggerConfig, "atari": atari.AtariLoggerConfig},
+        "demo": {"gym": gym.GymDemoConfig, "atari": atari.AtariDemoConfig},
+        "env": {"gym": gym.EnvConfig, "atari": atari.AtariEnvConfig},
     }.items():
         for name, node in entries.items():
             cs.store(group=group, name=name, node=node)

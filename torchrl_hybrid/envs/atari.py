@@ -13,13 +13,15 @@ at the first life lost.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-__all__ = ["ATARI_GAMES", "AtariEnv", "action_names"]
+__all__ = ["ATARI_GAMES", "AtariEnv", "action_classes", "action_names", "rom_path"]
 
 #: the paper's eight games
 ATARI_GAMES = ("Alien", "BeamRider", "Breakout", "MsPacman", "Pong", "Qbert", "Seaquest", "SpaceInvaders")
@@ -281,3 +283,67 @@ class AtariEnv(EnvBase):
             self._env.close()
             self._env = None
         super().close(**kwargs)
+
+
+def rom_path(game: str) -> Path:
+    """ale-py's ROM of ``game`` (BeamRider -> beam_rider); ``ValueError`` if it has none."""
+    from ale_py import roms
+
+    rom = roms.get_rom_path(_rom_name(game))
+    if rom is None:
+        raise ValueError(f"no ROM for {game!r} in ale-py")
+    return rom
+
+
+def action_classes(game: str, states: int, seed: int = 0, frameskip: int = 4) -> dict:
+    """Which of ``game``'s actions (s, s') can tell apart at all: an upper bound on what any
+    inverse model can label. Plays ``states`` steps of uniformly random actions (frame skip
+    ``frameskip``, no sticky actions, as the training env); at each, saves the emulator state,
+    plays every action once from it and compares the next screens (grayscale, full
+    resolution, the max of the last two frames as the preprocessing takes). Returns the share
+    of states where no action changes the next screen (``no_action_visible``), where all do
+    (``all_distinct``), the mean number of classes of equal next screens, and their histogram.
+    ``benchmarks/atari_action_effect.py`` runs it over games from the command line."""
+    import numpy as np
+    from ale_py import ALEInterface, LoggerMode
+
+    rom = rom_path(game)
+    ALEInterface.setLoggerMode(LoggerMode.Error)
+    ale = ALEInterface()
+    ale.setInt("random_seed", seed)
+    ale.setFloat("repeat_action_probability", 0.0)
+    ale.loadROM(rom)
+    actions = list(ale.getMinimalActionSet())
+    rng = np.random.default_rng(seed)
+
+    def step(a) -> np.ndarray:
+        frames = []
+        for i in range(frameskip):
+            ale.act(a)
+            if i >= frameskip - 2:
+                frames.append(ale.getScreenGrayscale())
+        return np.maximum(*frames) if len(frames) == 2 else frames[-1]
+
+    counts = []
+    for _ in range(states):
+        if ale.game_over():
+            ale.reset_game()
+        saved = ale.cloneState()
+        screens = []
+        for a in actions:
+            ale.restoreState(saved)
+            screens.append(step(a).tobytes())
+        counts.append(len(set(screens)))
+        ale.restoreState(saved)
+        step(actions[int(rng.integers(len(actions)))])
+    c = np.array(counts)
+    n = len(actions)
+    return {
+        "game": game,
+        "actions": n,
+        "states": states,
+        "no_action_visible": float((c == 1).mean()),
+        "all_distinct": float((c == n).mean()),
+        "mean_classes": float(c.mean()),
+        "classes_histogram": {int(k): int((c == k).sum()) for k in range(1, n + 1)},
+    }

@@ -7,7 +7,7 @@ from torchrl.envs import EnvBase, GymEnv, GymWrapper, RewardSum, SerialEnv, Tran
 
 from torchrl_hybrid.envs.tabular import TabularEnv, TabularModel
 
-__all__ = ["BACKENDS", "make_gym_env", "make_toy_text_env", "observation_kind"]
+__all__ = ["BACKENDS", "make_gym_env", "observation_kind"]
 
 BACKENDS = ("auto", "tabular", "gym", "vector")
 
@@ -107,7 +107,3 @@ def make_gym_env(
         env.append_transform(RewardSum())
         return env
     return TransformedEnv(env, RewardSum())
-
-
-#: the name the toy-text recipes and tests use; the same builder
-make_toy_text_env = make_gym_env

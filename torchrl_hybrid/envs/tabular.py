@@ -58,7 +58,7 @@ class TabularModel:
         """One step of every (state, action) pair, any batch shape: ``(s', reward,
         terminated)``, the successor drawn from ``prob`` with ``generator`` (one draw per
         pair, in row-major order; none for a deterministic model). :class:`TabularEnv` and
-        the batched fast path (``trainers/batched.py``) both step with this."""
+        the batched fast path (``families/gym_batched.py``) both step with this."""
         if self.deterministic:
             k = torch.zeros_like(s)
         else:

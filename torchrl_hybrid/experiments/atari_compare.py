@@ -2,7 +2,7 @@
 and a summary table per game.
 
 ``recipes/atari_compare.py`` is the command line. Each run is an ordinary
-:func:`~torchrl_hybrid.trainers.atari.train_atari` run in ``<out_dir>/<game>/<variant>_s<seed>``;
+:func:`~torchrl_hybrid.families.atari.train_atari` run in ``<out_dir>/<game>/<variant>_s<seed>``;
 a run whose ``summary.json`` exists is not run again, and an unfinished one goes
 on from its last checkpoint (every tenth of its frames), so a sweep interrupted at
 the end of a session picks up where it stopped. The tables and figures describe every
@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from torchrl_hybrid.experiments.study import open_study, planned_run, runs_to_do
+from torchrl_hybrid.experiments.study import open_study, planned_run, runs_to_do, study_provenance
 from torchrl_hybrid.utils.config import flatten_dict, merge_dicts
 from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
@@ -162,8 +162,8 @@ class CompareConfig:
 
     def validate(self) -> CompareConfig:
         from torchrl_hybrid.experiments.arms import check_arms
-        from torchrl_hybrid.trainers.atari import ATARI_VARIANTS
-        from torchrl_hybrid.trainers.hybrid import get_variant
+        from torchrl_hybrid.families.atari import ATARI_VARIANTS
+        from torchrl_hybrid.variants import get_variant
 
         check_arms(self.arms, self.all_arms, ATARI_VARIANTS, (), "plus AtariConfig overrides")
         bad = sorted(set(self.variants) - set(ATARI_VARIANTS) - set(self.all_arms))
@@ -232,7 +232,7 @@ def _one(job: tuple[dict, str]) -> tuple[str, float]:
     """One run. Whether it resumes is decided when it starts: a run interrupted mid-way
     (or whose worker died and was restarted) goes on from its last checkpoint; one cut
     before its first checkpoint starts again (replacing its partial curve)."""
-    from torchrl_hybrid.trainers.atari import atari_config, train_atari
+    from torchrl_hybrid.families.atari import atari_config, train_atari
     from torchrl_hybrid.utils.process import configure_worker
 
     d, name = job
@@ -324,7 +324,7 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
     nothing: it names the runs that are not finished and analyses the others."""
     import dataclasses
 
-    from torchrl_hybrid.trainers.atari import _RESUME_IGNORE, _RESUME_KEYS, AtariConfig, atari_config
+    from torchrl_hybrid.families.atari import _RESUME_IGNORE, _RESUME_KEYS, AtariConfig, atari_config
 
     cfg.validate()
     if cfg.analyse_only:
@@ -374,7 +374,7 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
                     },
                 )
                 planned.append(planned_run(f"{game}/{name}_s{seed}", out, d, atari_config))
-    with open_study(cfg.out_dir, "atari_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
+    with open_study(cfg.out_dir, "atari_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite) as study:
         named, changed = runs_to_do(
             planned,
             cfg.out_dir,
@@ -384,6 +384,8 @@ def run_compare(cfg: CompareConfig) -> dict[str, Any]:
             overwrite=cfg.overwrite,
         )
         jobs = [(d, n) for n, d in named]
+        if jobs:
+            study.record_session()
         print(
             f"{len(jobs)} run(s) to do in {cfg.out_dir}"
             + (" on Ray" if cfg.launcher == "ray" else "")
@@ -812,7 +814,10 @@ def analyse_compare(cfg: CompareConfig, window: int = 200_000) -> dict[str, Any]
             w = csv.DictWriter(f, fieldnames=list(table[0]))
             w.writeheader()
             w.writerows(table)
-        (gdir / "summary.md").write_text(_summary_markdown(game, table, win, milestones))
+        made = study_provenance(gdir.parent)
+        (gdir / "summary.md").write_text(
+            _summary_markdown(game, table, win, milestones) + (f"\n{made}\n" if made else "")
+        )
         result[game] = table
 
         def ci_txt(c):

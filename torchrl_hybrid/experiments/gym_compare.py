@@ -1,5 +1,5 @@
 """Variants x seeds of one gymnasium run config (Taxi, FrozenLake, CartPole, ...) on the
-TorchRL path (:func:`~torchrl_hybrid.trainers.taxi.train_taxi`), then one curve file,
+TorchRL path (:func:`~torchrl_hybrid.families.gym.train_gym`), then one curve file,
 figure, table and README per comparison.
 
 ``recipes/compare.py`` is the command line; tests call :func:`run_gym_compare`.
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from torchrl_hybrid.experiments.study import open_study, planned_run, runs_to_do
+from torchrl_hybrid.experiments.study import open_study, planned_run, runs_to_do, study_provenance
 from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
@@ -80,14 +80,14 @@ GYM_ARMS: dict[str, dict] = {
 
 @dataclass
 class GymCompareConfig:
-    """What to run: every variant with every seed, each a ``train_taxi`` run of
-    ``base`` (a :class:`~torchrl_hybrid.trainers.taxi.TaxiConfig` as nested dicts) in
+    """What to run: every variant with every seed, each a ``train_gym`` run of
+    ``base`` (a :class:`~torchrl_hybrid.families.gym.GymConfig` as nested dicts) in
     ``out_dir/<variant>_s<seed>``. Finished runs are not run again; a run with a
     checkpoint but no summary resumes from it."""
 
     base: dict = field(default_factory=dict)
-    variants: Sequence[str] = ("a2c", "hybrid_dual")  # variants (trainers/hybrid.py) or arms (GYM_ARMS, arms)
-    # more named arms: name -> {variant: ..., base: <arm or variant it changes>, <TaxiConfig overrides>}
+    variants: Sequence[str] = ("a2c", "hybrid_dual")  # variants (torchrl_hybrid/variants.py) or arms (GYM_ARMS, arms)
+    # more named arms: name -> {variant: ..., base: <arm or variant it changes>, <GymConfig overrides>}
     arms: dict = field(default_factory=dict)
     seeds: Sequence[int] = (0, 1, 2)
     out_dir: str = "results/compare"
@@ -115,9 +115,9 @@ class GymCompareConfig:
 
     def validate(self) -> GymCompareConfig:
         from torchrl_hybrid.experiments.arms import check_arms
-        from torchrl_hybrid.trainers.hybrid import VARIANTS
+        from torchrl_hybrid.variants import VARIANTS
 
-        check_arms(self.arms, self.all_arms, VARIANTS, self.variants, "plus TaxiConfig settings over the base")
+        check_arms(self.arms, self.all_arms, VARIANTS, self.variants, "plus GymConfig settings over the base")
         if self.workers < 1:
             raise ValueError(f"compare.workers must be >= 1, got {self.workers}")
         if not self.seeds:
@@ -169,13 +169,13 @@ def run_one(d: dict) -> tuple[str, float]:
     run restarted after its worker died goes on from its last checkpoint (or starts
     again, replacing its partial files, when it died before the first one). A job with
     ``overwrite`` starts again whatever the folder holds."""
-    from torchrl_hybrid.trainers.taxi import config_from_dict, train_taxi
+    from torchrl_hybrid.families.gym import config_from_dict, train_gym
     from torchrl_hybrid.utils.process import configure_worker
 
     configure_worker(d.get("threads"))
     ckpt = not d.get("overwrite") and (Path(d["out_dir"]) / "checkpoint").exists()
     t0 = time.perf_counter()
-    train_taxi(config_from_dict(merge_dicts(d, {"resume": ckpt, "overwrite": not ckpt})))
+    train_gym(config_from_dict(merge_dicts(d, {"resume": ckpt, "overwrite": not ckpt})))
     return d["out_dir"], time.perf_counter() - t0
 
 
@@ -193,7 +193,7 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
     ``cfg.overwrite``, run again)."""
     import dataclasses
 
-    from torchrl_hybrid.trainers.taxi import _RESUME_KEYS, TaxiConfig, config_from_dict
+    from torchrl_hybrid.families.gym import _RESUME_KEYS, GymConfig, config_from_dict
 
     cfg.validate()
     # a progress bar only where one run trains in this terminal, and only if the settings ask for it
@@ -207,7 +207,7 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
                 {"seed": seed, "out_dir": str(out), "logger": {"progress_bar": bar}},
             )
             planned.append(planned_run(f"{variant}_s{seed}", out, d, config_from_dict))
-    with open_study(cfg.out_dir, "gym_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite):
+    with open_study(cfg.out_dir, "gym_compare", looks_like=_looks_like_compare, overwrite=cfg.overwrite) as study:
         if cfg.analyse_only:
             todo = [name for name, out, _, _ in planned if not (out / "summary.json").exists()]
             print(
@@ -220,10 +220,12 @@ def run_gym_compare(cfg: GymCompareConfig, run_fn=run_one) -> dict[str, Any]:
             cfg.out_dir,
             _RESUME_KEYS + STUDY_KEYS,
             ignore=("logger.progress_bar",),
-            defaults=dataclasses.asdict(TaxiConfig()),
+            defaults=dataclasses.asdict(GymConfig()),
             overwrite=cfg.overwrite,
         )
         jobs = [d for _, d in named]
+        if jobs:
+            study.record_session()
         print(
             f"{len(jobs)} run(s) to do in {cfg.out_dir}"
             + (" on Ray" if cfg.launcher == "ray" else "")
@@ -436,6 +438,9 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
             + (f" ({wall_time_s / 60:.1f} min on the 2-core CPU machine)" if wall_time_s else ""),
             "",
         ]
+    made = study_provenance(out)
+    if made:
+        lines += [made, ""]
     lines += [
         "Greedy return of the policy (mode of its distribution) on fresh episodes at every logged point; "
         "`auc` is its mean over the logged points, `final` the greedy return at the end of the run, "

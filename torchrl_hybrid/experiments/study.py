@@ -20,6 +20,7 @@ from typing import Any
 
 from torchrl_hybrid.utils.config import flatten_dict
 from torchrl_hybrid.utils.files import read_json, take_lock
+from torchrl_hybrid.utils.provenance import provenance, provenance_line
 
 __all__ = [
     "STUDY_FILE",
@@ -43,6 +44,14 @@ class Study:
 
     def __init__(self, out: Path, kind: str, lock):
         self.out, self.kind, self._lock = out, kind, lock
+
+    def record_session(self) -> None:
+        """Appends where this session trains (commit, command, machine: utils/provenance.py) to
+        ``study.json``; called once the plan has passed its checks and runs are about to train."""
+        record = self.out / STUDY_FILE
+        saved = read_json(record, "study record")
+        saved.setdefault("sessions", []).append(provenance())
+        _write_record(record, saved)
 
     def close(self) -> None:
         if self._lock is not None:
@@ -86,10 +95,22 @@ def open_study(out_dir: str | Path, kind: str, *, looks_like: Callable[[Path], b
     out.mkdir(parents=True, exist_ok=True)
     lock = take_lock(out / _LOCK, "another study")
     if not record.exists():
-        tmp = record.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"kind": kind}, indent=2))
-        tmp.replace(record)
+        _write_record(record, {"kind": kind})
     return Study(out, kind, lock)
+
+
+def _write_record(record: Path, data: dict) -> None:
+    tmp = record.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    tmp.replace(record)
+
+
+def study_provenance(out_dir: str | Path) -> str | None:
+    """The README line saying where the study's last session ran (None for a study written
+    before ``study.json`` recorded it)."""
+    record = Path(out_dir) / STUDY_FILE
+    sessions = read_json(record, "study record").get("sessions") if record.exists() else None
+    return provenance_line(sessions[-1]) if sessions else None
 
 
 def settings_diff(

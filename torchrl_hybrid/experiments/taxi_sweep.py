@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from torchrl_hybrid.experiments.study import open_study, settings_diff
+from torchrl_hybrid.experiments.study import Study, open_study, settings_diff, study_provenance
 from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
@@ -50,7 +50,7 @@ ALIASES = {"hybrid_dual_rank2": "hybrid_dual"}
 
 @dataclass
 class SweepConfig:
-    """What to run. ``base`` holds TaxiConfig overrides applied to every run."""
+    """What to run. ``base`` holds GymConfig overrides applied to every run."""
 
     groups: Sequence[str] = ("agents", "ranks", "noise")
     seeds: int = 16
@@ -93,8 +93,8 @@ class _BarFeed:
 
 def _run_batch(args) -> tuple[str, list[dict]]:
     name, cfg_dicts, queue = args
-    from torchrl_hybrid.trainers.batched import train_taxi_batched
-    from torchrl_hybrid.trainers.taxi import config_from_dict
+    from torchrl_hybrid.families.gym import config_from_dict
+    from torchrl_hybrid.families.gym_batched import train_taxi_batched
     from torchrl_hybrid.utils.process import configure_worker
 
     configure_worker(1)
@@ -139,8 +139,8 @@ def run_sweep(cfg: SweepConfig, show_progress: bool = True) -> dict[str, list[di
         jobs.append((name, dicts))
     # the slowest (dual-model) jobs first so that the two workers finish together
     jobs.sort(key=lambda j: ("dual" not in j[0], j[0]))
-    with open_study(cfg.out_dir, "taxi_sweep", looks_like=_looks_like_sweep, overwrite=cfg.overwrite):
-        return _run_sweep(cfg, jobs, show_progress)
+    with open_study(cfg.out_dir, "taxi_sweep", looks_like=_looks_like_sweep, overwrite=cfg.overwrite) as study:
+        return _run_sweep(cfg, jobs, show_progress, study)
 
 
 def _looks_like_sweep(folder: Path) -> bool:
@@ -148,7 +148,7 @@ def _looks_like_sweep(folder: Path) -> bool:
     return (folder / "runs.json").exists() or (folder / "configs").is_dir()
 
 
-def _run_sweep(cfg: SweepConfig, jobs: list, show_progress: bool) -> dict[str, list[dict]]:
+def _run_sweep(cfg: SweepConfig, jobs: list, show_progress: bool, study: Study) -> dict[str, list[dict]]:
     from tqdm import tqdm
 
     out = Path(cfg.out_dir)
@@ -188,6 +188,8 @@ def _run_sweep(cfg: SweepConfig, jobs: list, show_progress: bool) -> dict[str, l
         )
     if results:
         print(f"{len(results)} configuration(s) already done in {done_dir}; {len(jobs)} to run", flush=True)
+    if jobs:
+        study.record_session()
 
     def keep(name, summaries):
         results[name] = summaries
@@ -643,10 +645,11 @@ def _write_readme(out, S, results, meta, params, claims, figs, optimal: float, e
         else f"# {env_name}: the paper's Taxi study on another env",
         "",
         f"{len(results)} configurations × {seeds} seeds × {frames:,} frames, trained with the batched fast path "
-        f"(`torchrl_hybrid/trainers/batched.py`) in **{meta['wall_time_s']:.0f} s** wall time with "
+        f"(`torchrl_hybrid/families/gym_batched.py`) in **{meta['wall_time_s']:.0f} s** wall time with "
         f"{meta['workers']} worker processes on a 2-core CPU.",
         "",
         f"Rerun: `{rerun}`.",
+        *([study_provenance(out), ""] if study_provenance(out) else []),
         "Curves are greedy-policy returns on 100 fresh episodes every 2,000 frames, mean ± std over seeds. "
         "`final` is the greedy return over 300 episodes at the end; `auc` the mean greedy return over the logged "
         f"points; `reach` the frames until the greedy return first reached 95 % of the optimum ({0.95 * optimal:.2f}; "

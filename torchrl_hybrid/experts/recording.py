@@ -12,7 +12,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
 from torchrl_hybrid.data import pairs_from_trajectories, save_demos
-from torchrl_hybrid.envs import make_toy_text_env
+from torchrl_hybrid.envs import make_gym_env
 from torchrl_hybrid.envs.atari import AtariEnv
 from torchrl_hybrid.experts.checkpoints import load_expert
 from torchrl_hybrid.utils.device import module_device
@@ -41,9 +41,7 @@ def record_episodes(
     round_ = 0
     while len(states) < num_episodes:
         n = min(num_envs, num_episodes - len(states))
-        env = make_toy_text_env(
-            env_id, n, max_episode_steps=max_steps, seed=seed + 1000 * round_, env_kwargs=env_kwargs
-        )
+        env = make_gym_env(env_id, n, max_episode_steps=max_steps, seed=seed + 1000 * round_, env_kwargs=env_kwargs)
         with set_exploration_type(etype):
             td = env.rollout(max_steps, policy, break_when_any_done=False)
         env.close()

@@ -1,20 +1,20 @@
-"""Trainer hooks and assembly of the hybrid agent on TorchRL's ``Trainer``."""
+"""TorchRL's ``Trainer`` for the hybrid agent: the config schemas every env shares
+(:mod:`~torchrl_hybrid.trainers.config`), the run assembly an env family plugs into
+(:mod:`~torchrl_hybrid.trainers.run`), the trainer and its optimisation step
+(:mod:`~torchrl_hybrid.trainers.trainer`), its hooks and the evaluation."""
 
 from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import CurriculumHook, DelayedCoefficientHook, ExpertBatchHook, MetricsHook
-from torchrl_hybrid.trainers.hybrid import VARIANTS, Variant, get_variant, make_hybrid_loss, make_trainer, param_groups
+from torchrl_hybrid.trainers.trainer import ClippedOptimizationStepper, attach_demonstrations, make_trainer
 
 __all__ = [
-    "VARIANTS",
+    "ClippedOptimizationStepper",
     "CurriculumHook",
     "DelayedCoefficientHook",
     "ExpertBatchHook",
     "MetricsHook",
-    "Variant",
+    "attach_demonstrations",
     "evaluate_policy",
-    "get_variant",
     "inverse_model_accuracy",
-    "make_hybrid_loss",
     "make_trainer",
-    "param_groups",
 ]

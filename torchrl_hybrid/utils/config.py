@@ -1,4 +1,5 @@
-"""Nested dataclass configs from plain (e.g. Hydra) dicts, with the types checked."""
+"""Nested dataclass configs from plain (e.g. Hydra) dicts, with the types checked, and the checks each
+config group's ``validate()`` states its rules with."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 __all__ = [
+    "require",
     "dataclass_from_dict",
     "flatten_dict",
     "merge_dicts",
@@ -53,6 +55,13 @@ def _check(value: Any, hint: Any, key: str) -> Any:
     if not ok:
         raise ValueError(f"{key}={value!r} must be {_SCALARS[hint]}")
     return float(value) if hint is float else value
+
+
+def require(ok: bool, msg: str) -> None:
+    """Raises ``ValueError(msg)`` unless ``ok``: each config group's ``validate()`` states its
+    rules with it, each message naming the setting and the fix."""
+    if not ok:
+        raise ValueError(msg)
 
 
 def check_types(obj: Any, prefix: str = "", recurse: bool = True) -> None:
@@ -108,24 +117,48 @@ def check_float(
 
 
 def dataclass_from_dict(cls: type[T], values: dict[str, Any], prefix: str = "") -> T:
-    """Builds ``cls`` from nested dicts, recursing into dataclass-typed fields,
-    rejecting unknown keys with a message that lists the known ones, and values of
-    the wrong type with a message naming the setting."""
+    """Builds ``cls`` from nested dicts the way Hydra does (``OmegaConf.structured``, merged
+    with ``values``, then ``OmegaConf.to_object``), with OmegaConf's errors turned into one-line
+    ``ValueError`` messages that name the setting: an unknown key lists the known ones, a value
+    of the wrong type names the type wanted. The result's types are then checked strictly
+    (:func:`check_types`)."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import ConfigKeyError, ValidationError
+
+    _check_values(cls, values, prefix)
+    try:
+        obj = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), values))
+    except ConfigKeyError as err:
+        full = str(err.full_key)
+        parent, _, _ = full.rpartition(".")
+        group: Any = cls
+        for name in parent.split(".") if parent else ():
+            group = next(f for f in dataclasses.fields(group) if f.name == name).default_factory
+        known = ", ".join(f.name for f in dataclasses.fields(group))
+        raise ValueError(f"unknown config key {prefix + full!r}; known keys: {known}") from None
+    except ValidationError as err:
+        hint = str(err).splitlines()[0]
+        raise ValueError(f"{prefix}{err.full_key}: {hint}") from None
+    check_types(obj, prefix)
+    return typing.cast(T, obj)
+
+
+def _check_values(cls: Any, values: Any, prefix: str) -> None:
+    """The mistakes OmegaConf names less clearly, each refused with the setting and the fix: an
+    unknown key (with the known ones), a group of settings given as a scalar (``loss=3``), a
+    scalar of the wrong type (``seed='abc' must be an integer``)."""
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
-    kwargs = {}
     for k, v in dict(values).items():
         if k not in fields:
             raise ValueError(f"unknown config key {prefix + k!r}; known keys: {', '.join(fields)}")
-        factory = fields[k].default_factory
-        sub = factory if factory is not dataclasses.MISSING and dataclasses.is_dataclass(factory) else None
-        if sub is not None:
-            if not isinstance(v, dict):
+        sub = fields[k].default_factory
+        if sub is not dataclasses.MISSING and dataclasses.is_dataclass(sub):
+            if not isinstance(v, typing.Mapping):
                 raise ValueError(f"{prefix + k}={v!r} must be a group of settings ({prefix + k}.<name>=...)")
-            kwargs[k] = dataclass_from_dict(sub, v, f"{prefix}{k}.")
+            _check_values(sub, v, f"{prefix}{k}.")
         else:
-            kwargs[k] = _check(v, hints.get(k, Any), prefix + k)
-    return cls(**kwargs)
+            _check(v, hints.get(k, Any), prefix + k)
 
 
 def merge_dicts(a: dict, b: dict) -> dict:

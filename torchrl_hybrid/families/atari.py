@@ -27,23 +27,18 @@ from torchrl_hybrid.envs.atari import AtariEnv
 from torchrl_hybrid.experts import load_expert, record_demos
 from torchrl_hybrid.modules import AtariEncoder, make_atari_actor_critic
 from torchrl_hybrid.modules.atari import orthogonal_init_
+from torchrl_hybrid.trainers.config import DemoConfig, LoggerConfig, LossConfig, OptimConfig, RunConfig
 from torchrl_hybrid.trainers.evaluation import evaluate_atari, inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import NextStateValueHook, RandomStateHook
-from torchrl_hybrid.trainers.hybrid import get_variant
-from torchrl_hybrid.trainers.run import (
-    DemoConfig,
+from torchrl_hybrid.trainers.run import (  # what Atari's settings extend
     EnvFamily,
-    LoggerConfig,
-    LossConfig,
     Networks,
-    OptimConfig,
     Run,
-    RunConfig,
     Setup,
     build_run,
     finite,
     train_run,
-)  # what Atari's settings extend
+)
 from torchrl_hybrid.utils.config import (
     MAX_FRAMES,
     MAX_THREADS,
@@ -54,6 +49,7 @@ from torchrl_hybrid.utils.config import (
 )
 from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT
+from torchrl_hybrid.variants import get_variant
 
 # evaluate_atari, record_demos and load_expert live with evaluation and the experts; exported here as before
 __all__ = [
@@ -357,6 +353,15 @@ _RESUME_KEYS = (
 _RESUME_IGNORE = ("env.num_threads",)
 
 
+@dataclass
+class AtariSetup(Setup):
+    """Atari's :class:`Setup`: the game batch its preprocessing and actions are read from, and
+    the AtariCollector's env batches (None with the other collector backends)."""
+
+    base: Any = None
+    envs: list | None = None
+
+
 class AtariFamily(EnvFamily):
     """Atari in the one run assembly (:func:`~torchrl_hybrid.trainers.run.build_run`): the
     paper's CNN shared by actor, critic and inverse model (``idm_encoder=own``: the inverse
@@ -373,7 +378,7 @@ class AtariFamily(EnvFamily):
         {"value_estimator_kwargs": {"skip_existing": True}}
     )  # values come from NextStateValueHook
 
-    def setup(self, cfg: AtariConfig, variant, device, generator) -> Setup:
+    def setup(self, cfg: AtariConfig, variant, device, generator) -> AtariSetup:
         # the games run on the CPU; networks, learner and demos live on `device`
         envs = None
         if cfg.collector.backend == "atari":
@@ -393,7 +398,7 @@ class AtariFamily(EnvFamily):
         else:
             env = _make_env(cfg)
             base = env.base_env
-        setup = Setup(env, base.n_actions, None, {"base": base, "envs": envs})
+        setup = AtariSetup(env, base.n_actions, base=base, envs=envs)
         if variant.bc is not None:
             try:
                 setup.demos, meta = load_demos(
@@ -411,14 +416,14 @@ class AtariFamily(EnvFamily):
                 raise
         return setup
 
-    def close_envs(self, setup: Setup) -> None:
-        for env in setup.extra["envs"] or [setup.env]:
+    def close_envs(self, setup: AtariSetup) -> None:
+        for env in setup.envs or [setup.env]:
             env.close()
 
-    def frame_skip(self, setup: Setup) -> int:
-        return setup.extra["base"].preprocessing["frameskip"]
+    def frame_skip(self, setup: AtariSetup) -> int:
+        return setup.base.preprocessing["frameskip"]
 
-    def networks(self, cfg: AtariConfig, variant, setup: Setup) -> Networks:
+    def networks(self, cfg: AtariConfig, variant, setup: AtariSetup) -> Networks:
         # RayCollector sends the weights through torch.distributed, which takes contiguous tensors
         # only: no channels-last convolution weights there (same numbers, another memory layout)
         encoder = AtariEncoder(channels_last=False) if cfg.collector.backend == "ray" else None
@@ -429,10 +434,10 @@ class AtariFamily(EnvFamily):
             return Networks(actor, critic, lambda: make_inverse_encoder(cfg), policy, encoder)
         return Networks(actor, critic, lambda: encoder, policy, encoder)  # one CNN for all
 
-    def collector(self, cfg: AtariConfig, setup: Setup, policy, device, total_steps: int):
+    def collector(self, cfg: AtariConfig, setup: AtariSetup, policy, device, total_steps: int):
         if cfg.collector.backend == "atari":
             return AtariCollector(
-                setup.extra["envs"],
+                setup.envs,
                 policy,
                 frames_per_batch=cfg.frames_per_batch,
                 total_frames=total_steps,
@@ -464,7 +469,7 @@ class AtariFamily(EnvFamily):
     def uses_workers(self, cfg: AtariConfig) -> bool:
         return cfg.collector.backend in WORKER_KINDS
 
-    def sampler(self, cfg: AtariConfig, setup: Setup):
+    def sampler(self, cfg: AtariConfig, setup: AtariSetup):
         return (
             CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
             if cfg.demo.curriculum
@@ -495,7 +500,7 @@ class AtariFamily(EnvFamily):
         }
 
     def finish(self, run: Run) -> tuple[dict, dict]:
-        cfg, base, rows = run.cfg, run.setup.extra["base"], run.metrics.rows
+        cfg, base, rows = run.cfg, run.setup.base, run.metrics.rows
         evaluation = None
         if cfg.logger.eval_episodes > 0:
             evaluation = evaluate_atari(

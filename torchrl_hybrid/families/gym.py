@@ -10,8 +10,8 @@ an earlier run of this pipeline, e.g. ``variant=a2c``), whose trajectories are r
 as the state-only demos.
 
 ``recipes/taxi.py`` and ``recipes/train.py`` are thin Hydra front-ends over
-:func:`train_taxi`; tests and notebooks call :func:`train_taxi` directly with a
-:class:`TaxiConfig`.
+:func:`train_gym`; tests and notebooks call :func:`train_gym` directly with a
+:class:`GymConfig`.
 """
 
 from __future__ import annotations
@@ -39,27 +39,17 @@ from torchrl_hybrid.data import (
     tabular_state_pairs,
     tabular_trajectories,
 )
-from torchrl_hybrid.envs import BACKENDS, TabularEnv, TabularModel, make_toy_text_env, observation_kind
+from torchrl_hybrid.envs import BACKENDS, TabularEnv, TabularModel, make_gym_env, observation_kind
 from torchrl_hybrid.experts import episode_ends, expected_return, load_gym_expert, optimal_policy, record_episodes
 from torchrl_hybrid.modules import MLPEncoder, OneHotEncoder, make_mlp_actor_critic, make_tabular_actor_critic
+from torchrl_hybrid.trainers.config import DemoConfig, LoggerConfig, RunConfig
 from torchrl_hybrid.trainers.evaluation import evaluate_policy, inverse_model_accuracy
 from torchrl_hybrid.trainers.hooks import RandomStateHook, RunStateHook
-from torchrl_hybrid.trainers.hybrid import get_variant
-from torchrl_hybrid.trainers.run import (
-    DemoConfig,
-    EnvFamily,
-    LoggerConfig,
-    Networks,
-    Run,
-    RunConfig,
-    Setup,
-    _need,
-    build_run,
-    train_run,
-)
-from torchrl_hybrid.utils.config import MAX_FRAMES, check_float, check_int, check_types, dataclass_from_dict
+from torchrl_hybrid.trainers.run import EnvFamily, Networks, Run, Setup, build_run, train_run
+from torchrl_hybrid.utils.config import MAX_FRAMES, check_float, check_int, check_types, dataclass_from_dict, require
 from torchrl_hybrid.utils.device import resolve_device
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
+from torchrl_hybrid.variants import get_variant
 
 # a checkpoint is resumed only by a run that agrees on these (total_frames may grow)
 _RESUME_KEYS = (
@@ -80,12 +70,12 @@ _RESUME_KEYS = (
 )
 
 __all__ = [
-    "TaxiConfig",
+    "GymConfig",
     "GymFamily",
     "config_from_dict",
     "make_taxi_demos",
-    "build_taxi",
-    "train_taxi",
+    "build_gym",
+    "train_gym",
     "record_episodes",
     "load_gym_expert",
 ]
@@ -124,7 +114,7 @@ class EnvConfig:
                     f"env.env_id={self.env_id}: {_one_line(err)} (gymnasium.pprint_registry() lists the "
                     "registered ids, e.g. Taxi-v4, FrozenLake-v1, CartPole-v1)"
                 ) from None
-        _need(self.backend in BACKENDS, f"env.backend must be one of {BACKENDS}, got {self.backend!r}")
+        require(self.backend in BACKENDS, f"env.backend must be one of {BACKENDS}, got {self.backend!r}")
         check_int("env.num_envs", self.num_envs, 1)
         check_int("env.max_episode_steps", self.max_episode_steps, 1, MAX_FRAMES)
 
@@ -161,17 +151,17 @@ class GymDemoConfig(DemoConfig):
 
     def validate(self, variant: str | None = None) -> None:
         super().validate(variant)
-        _need(self.form in DEMO_FORMS, f"demo.form must be one of {DEMO_FORMS}, got {self.form!r}")
+        require(self.form in DEMO_FORMS, f"demo.form must be one of {DEMO_FORMS}, got {self.form!r}")
         check_int("demo.num_trajectories", self.num_trajectories, 1)
         for name in ("eta", "epsilon"):
             check_float(f"demo.{name}", getattr(self, name), 0.0, 1.0, hi_open=True)
-        _need(
+        require(
             self.epsilon_mode in EPSILON_MODES,
             f"demo.epsilon_mode must be one of {EPSILON_MODES}, got {self.epsilon_mode!r}",
         )
         # 0 would make the built-in expert indifferent to everything after the next reward
         check_float("demo.expert_gamma", self.expert_gamma, 0.0, 1.0, lo_open=True)
-        _need(self.rho in RHOS, f"demo.rho must be one of {RHOS}, got {self.rho!r}")
+        require(self.rho in RHOS, f"demo.rho must be one of {RHOS}, got {self.rho!r}")
 
 
 @dataclass
@@ -201,7 +191,7 @@ class CollectorConfig:
 
     def validate(self) -> None:
         check_types(self, "collector.")
-        _need(self.kind in COLLECTORS, f"collector.kind must be one of {COLLECTORS}, got {self.kind!r}")
+        require(self.kind in COLLECTORS, f"collector.kind must be one of {COLLECTORS}, got {self.kind!r}")
         check_int("collector.workers", self.workers, 1)
         check_float("collector.worker_gpus", self.worker_gpus, 0.0, cap=1024)
         worker_devices(self.kind, self.worker_gpus)  # worker_gpus: Ray only
@@ -224,7 +214,7 @@ class EncoderConfig:
 
 
 @dataclass
-class TaxiConfig(RunConfig):
+class GymConfig(RunConfig):
     """Every setting of a run of the gymnasium pipeline (Taxi by default), with its default;
     the Hydra schema of ``recipes/config/taxi.yaml``. The settings every run has
     (variant, seed, sizes, out_dir, device, resume, ...) and the shared loss, optim, logger and
@@ -236,7 +226,7 @@ class TaxiConfig(RunConfig):
     # linear head; false = the paper's text, a single linear map of the one-hot state
     identity_embedding: bool = True
     # torchrl = TorchRL collector + Trainer with hooks (any env, every option, checkpoints);
-    # batched = the sweep's fast path (trainers/batched.py): same algorithm, tabular envs, CPU only,
+    # batched = the sweep's fast path (families/gym_batched.py): same algorithm, tabular envs, CPU only,
     # rho=visited|uniform, no forward term, writes metrics/summary/plot but no checkpoint
     engine: str = "torchrl"
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -245,12 +235,12 @@ class TaxiConfig(RunConfig):
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
 
-    def validate(self) -> TaxiConfig:
+    def validate(self) -> GymConfig:
         """Raises ``ValueError`` naming the bad setting and what is allowed (one line), before
         anything is built: every setting's type and range, then the combinations."""
         get_variant(self.variant)
         check_types(self, recurse=False)
-        _need(self.engine in ENGINES, f"engine must be one of {ENGINES}, got {self.engine!r}")
+        require(self.engine in ENGINES, f"engine must be one of {ENGINES}, got {self.engine!r}")
         if self.engine == "batched" and self.resume:
             raise ValueError(
                 "resume=true needs engine=torchrl (the batched engine writes no checkpoint); "
@@ -268,22 +258,22 @@ class TaxiConfig(RunConfig):
         self.encoder.validate()
         self.validate_run()  # the settings every family shares: sizes, seed, frames, demo, loss, optim, logger, ppo
         if self.collector.kind != "single":
-            _need(
+            require(
                 self.env.num_envs % self.collector.workers == 0,
                 f"collector.workers={self.collector.workers} must divide env.num_envs={self.env.num_envs}",
             )
-            _need(self.engine == "torchrl", "collector.kind=multi_sync|ray needs engine=torchrl")
+            require(self.engine == "torchrl", "collector.kind=multi_sync|ray needs engine=torchrl")
         envs_per_worker = self.env.num_envs // (self.collector.workers if self.collector.kind != "single" else 1)
-        _need(
+        require(
             self.loss.explore_envs < envs_per_worker,
             f"loss.explore_envs={self.loss.explore_envs} must leave at least one env following the policy in each "
             f"collector ({envs_per_worker} envs each)",
         )
-        _need(
+        require(
             self.rl == "a2c" or self.engine == "torchrl",
             f"rl={self.rl} needs engine=torchrl (the batched engine is the paper's A2C)",
         )
-        _need(
+        require(
             self.total_frames >= self.frames_per_batch,
             f"total_frames={self.total_frames} is less than one batch (env.num_envs * loss.n_steps = {self.frames_per_batch})",
         )
@@ -298,12 +288,12 @@ def _one_line(err: BaseException) -> str:
     return " ".join(str(err).split())
 
 
-def config_from_dict(d: dict[str, Any]) -> TaxiConfig:
-    """Builds a :class:`TaxiConfig` from nested dicts (e.g. Hydra's), rejecting unknown keys."""
-    return dataclass_from_dict(TaxiConfig, d)
+def config_from_dict(d: dict[str, Any]) -> GymConfig:
+    """Builds a :class:`GymConfig` from nested dicts (e.g. Hydra's), rejecting unknown keys."""
+    return dataclass_from_dict(GymConfig, d)
 
 
-def given_demos(cfg: TaxiConfig, obs_shape, obs_dtype):
+def given_demos(cfg: GymConfig, obs_shape, obs_dtype):
     """The demos a run is given rather than records: ``demo.path`` (a folder written by
     ``save_demos``) or ``demo.minari`` (a local Minari dataset, actions dropped);
     ``None`` when neither is set. Demos recorded on another env are refused, and so are
@@ -336,7 +326,7 @@ def given_demos(cfg: TaxiConfig, obs_shape, obs_dtype):
     return demos
 
 
-def demo_fix(cfg: TaxiConfig) -> str:
+def demo_fix(cfg: GymConfig) -> str:
     """What to do about demos a check refuses (the end of its message)."""
     if cfg.demo.minari:
         return (
@@ -349,7 +339,7 @@ def demo_fix(cfg: TaxiConfig) -> str:
     )
 
 
-def make_taxi_demos(cfg: TaxiConfig, model: TabularModel, generator: torch.Generator):
+def make_taxi_demos(cfg: GymConfig, model: TabularModel, generator: torch.Generator):
     """The demo pairs of a run: the optimal expert's (or a file's), then noise."""
     policy, optimal = optimal_policy(model, cfg.demo.expert_gamma)
     ends = episode_ends(model, policy, cfg.env.max_episode_steps)
@@ -411,7 +401,7 @@ def tabular_model(env_id: str, env_kwargs: dict | None = None) -> TabularModel:
     return model
 
 
-def _check_vector_config(cfg: TaxiConfig, needs_demos: bool = True) -> None:
+def _check_vector_config(cfg: GymConfig, needs_demos: bool = True) -> None:
     """Options that need a toy-text env's discrete states or its table P are refused
     for vector observations, with what to use instead."""
     env = cfg.env.env_id
@@ -442,7 +432,7 @@ def _check_vector_config(cfg: TaxiConfig, needs_demos: bool = True) -> None:
         )
 
 
-def make_gym_demos(cfg: TaxiConfig, expert_actor, size: int):
+def make_gym_demos(cfg: GymConfig, expert_actor, size: int):
     """State-only demos of a vector-observation env (observations of ``size``):
     ``demo.path`` or ``demo.minari`` if given, else ``demo.num_trajectories`` whole episodes of
     ``expert_actor`` (greedy unless ``demo.deterministic=false``), the true actions kept
@@ -469,9 +459,9 @@ def make_gym_demos(cfg: TaxiConfig, expert_actor, size: int):
     return demos
 
 
-def _worker_env(cfg: TaxiConfig, i: int):
+def _worker_env(cfg: GymConfig, i: int):
     """The envs of collector worker ``i``: its share of ``env.num_envs``, its own seed."""
-    return make_toy_text_env(
+    return make_gym_env(
         cfg.env.env_id,
         cfg.env.num_envs // cfg.collector.workers,
         backend=cfg.env.backend,
@@ -481,7 +471,7 @@ def _worker_env(cfg: TaxiConfig, i: int):
     )
 
 
-def make_collector(cfg: TaxiConfig, env, actor, device):
+def make_collector(cfg: GymConfig, env, actor, device):
     """TorchRL's collector for ``cfg.collector.kind``: ``Collector`` over ``env`` in this
     process (the default), or ``MultiSyncCollector`` / ``RayCollector`` over
     ``collector.workers`` workers, each stepping ``env.num_envs / workers`` envs with its
@@ -506,6 +496,18 @@ def make_collector(cfg: TaxiConfig, env, actor, device):
     )
 
 
+@dataclass
+class GymSetup(Setup):
+    """The gym family's :class:`Setup`: what its later steps need."""
+
+    kind: str = "discrete"  # observation_kind(): "discrete" (tabular) or "vector"
+    size: int = 0  # the observation's length (vector) or the state count (discrete)
+    eval_env: Any = None  # the greedy evaluation's envs (logger.eval_episodes of them)
+    model: TabularModel | None = None  # tabular envs: the transition table
+    expert: Any = None  # tabular envs: the built-in optimal policy
+    expert_actor: Any = None  # vector envs: the expert (a checkpoint's actor or a callable), None without one
+
+
 class GymFamily(EnvFamily):
     """The gymnasium envs of this pipeline in the one run assembly
     (:func:`~torchrl_hybrid.trainers.run.build_run`): toy-text envs get one-hot encoders,
@@ -518,7 +520,7 @@ class GymFamily(EnvFamily):
     checkpoints_per_run = 4
     pbar_keys = ("return_mean", "eval_return")
 
-    def setup(self, cfg: TaxiConfig, variant, device, generator) -> Setup:
+    def setup(self, cfg: GymConfig, variant, device, generator) -> GymSetup:
         try:
             kind, size, A = observation_kind(cfg.env.env_id, cfg.env.kwargs)
         except (gymnasium.error.Error, ModuleNotFoundError, TypeError) as err:  # unknown id or module, bad kwargs
@@ -526,24 +528,23 @@ class GymFamily(EnvFamily):
                 f"env.env_id={cfg.env.env_id} with env.kwargs={cfg.env.kwargs}: gymnasium cannot make "
                 f"it ({type(err).__name__}: {_one_line(err)}); check the id and its keyword arguments"
             ) from None
-        extra = {"kind": kind, "size": size, "model": None, "expert": None, "expert_actor": None}
-        demos = None
+        model = expert = expert_actor = n_states = demos = None
         if kind == "discrete":
-            model = extra["model"] = tabular_model(cfg.env.env_id, cfg.env.kwargs)
-            A, extra["n_states"] = model.n_actions, model.n_states
-            demos, extra["expert"] = make_taxi_demos(cfg, model, generator)
+            model = tabular_model(cfg.env.env_id, cfg.env.kwargs)
+            A, n_states = model.n_actions, model.n_states
+            demos, expert = make_taxi_demos(cfg, model, generator)
         else:  # vector observations: the expert is a checkpoint (or its recorded demos); plain A2C needs neither
             needs_demos = variant.bc is not None or variant.inverse_model is not None
             _check_vector_config(cfg, needs_demos)
-            extra["expert_actor"] = load_gym_expert(cfg, size, A)
-            demos = make_gym_demos(cfg, extra["expert_actor"], size) if needs_demos else None
+            expert_actor = load_gym_expert(cfg, size, A)
+            demos = make_gym_demos(cfg, expert_actor, size) if needs_demos else None
         env = self.make_env(cfg, cfg.env.num_envs, cfg.seed)
-        extra["eval_env"] = self.make_env(cfg, cfg.logger.eval_episodes, cfg.seed + 10_000)
-        return Setup(env, A, demos, extra)
+        eval_env = self.make_env(cfg, cfg.logger.eval_episodes, cfg.seed + 10_000)
+        return GymSetup(env, A, demos, n_states, kind, size, eval_env, model, expert, expert_actor)
 
     @staticmethod
-    def make_env(cfg: TaxiConfig, num_envs: int, seed: int):
-        return make_toy_text_env(
+    def make_env(cfg: GymConfig, num_envs: int, seed: int):
+        return make_gym_env(
             cfg.env.env_id,
             num_envs,
             backend=cfg.env.backend,
@@ -552,35 +553,35 @@ class GymFamily(EnvFamily):
             env_kwargs=cfg.env.kwargs,
         )
 
-    def networks(self, cfg: TaxiConfig, variant, setup: Setup) -> Networks:
-        A, x = setup.n_actions, setup.extra
-        if x["kind"] == "discrete":
-            S = x["n_states"]
+    def networks(self, cfg: GymConfig, variant, setup: GymSetup) -> Networks:
+        A = setup.n_actions
+        if setup.kind == "discrete":
+            S = setup.n_states
             actor, critic = make_tabular_actor_critic(S, A, identity_embedding=cfg.identity_embedding)
             return Networks(actor, critic, lambda: OneHotEncoder(S))  # the inverse model's own e_s
-        size, enc = x["size"], cfg.encoder
+        size, enc = setup.size, cfg.encoder
         actor, critic = make_mlp_actor_critic(size, A, enc.hidden, enc.num_layers)
         return Networks(actor, critic, lambda: MLPEncoder(size, enc.hidden, enc.num_layers))
 
-    def collector(self, cfg: TaxiConfig, setup: Setup, policy, device, total_steps: int):
+    def collector(self, cfg: GymConfig, setup: GymSetup, policy, device, total_steps: int):
         return make_collector(cfg, setup.env, policy, device)
 
-    def small_model(self, cfg: TaxiConfig) -> bool:
+    def small_model(self, cfg: GymConfig) -> bool:
         return True  # one-hot tables and small MLPs: device=auto keeps them on the CPU
 
-    def uses_workers(self, cfg: TaxiConfig) -> bool:
+    def uses_workers(self, cfg: GymConfig) -> bool:
         return cfg.collector.kind != "single"
 
-    def sampler(self, cfg: TaxiConfig, setup: Setup):
+    def sampler(self, cfg: GymConfig, setup: GymSetup):
         if cfg.demo.rho == "visited":
-            return VisitedStateSampler(setup.extra["n_states"])
+            return VisitedStateSampler(setup.n_states)
         if cfg.demo.rho == "curriculum":
             return CurriculumSampler(cfg.demo.curriculum_k0, cfg.demo.curriculum_frames_per_step)
         return None
 
     def evaluator(self, run: Run):
         cfg, demos, inverse_model, actor = run.cfg, run.demos, run.inverse_model, run.actor
-        eval_env = run.setup.extra["eval_env"]
+        eval_env = run.setup.eval_env
         labelled = demos is not None and EXPERT_ACTION_KEY in demos.keys()
 
         def evaluate():
@@ -594,23 +595,23 @@ class GymFamily(EnvFamily):
     def register_late_hooks(self, run: Run) -> None:
         if run.cfg.collector.kind == "single" and isinstance(run.env.base_env, TabularEnv):
             # bit-exact resume: random states, the envs' states
-            RunStateHook(run.collector, [run.env, run.setup.extra["eval_env"]]).register(run.trainer)
+            RunStateHook(run.collector, [run.env, run.setup.eval_env]).register(run.trainer)
         else:  # gymnasium envs cannot save their state; the random state still resumes
             RandomStateHook().register(run.trainer)
 
     def finish(self, run: Run) -> tuple[dict, dict]:
-        cfg, x, max_steps = run.cfg, run.setup.extra, run.cfg.env.max_episode_steps
+        cfg, x, max_steps = run.cfg, run.setup, run.cfg.env.max_episode_steps
         final_env = self.make_env(cfg, cfg.logger.final_eval_episodes, cfg.seed + 20_000)
         final_returns = evaluate_policy(final_env, run.actor, max_steps)
         final_env.close()
         # the expert's own return, never assumed: exact from the start distribution for the built-in
         # expert; for an expert checkpoint its greedy return on the same final episodes (None without one)
         optimal_return = None
-        if x["model"] is not None:
-            optimal_return = expected_return(x["model"], x["expert"], max_steps)
-        elif x["expert_actor"] is not None:
+        if x.model is not None:
+            optimal_return = expected_return(x.model, x.expert, max_steps)
+        elif x.expert_actor is not None:
             expert_env = self.make_env(cfg, cfg.logger.final_eval_episodes, cfg.seed + 20_000)
-            optimal_return = float(evaluate_policy(expert_env, x["expert_actor"], max_steps).mean())
+            optimal_return = float(evaluate_policy(expert_env, x.expert_actor, max_steps).mean())
             expert_env.close()
         labelled = run.demos is not None and EXPERT_ACTION_KEY in run.demos.keys()
         return {
@@ -623,22 +624,22 @@ class GymFamily(EnvFamily):
             else None,
         }, {}
 
-    def title(self, cfg: TaxiConfig) -> str:
+    def title(self, cfg: GymConfig) -> str:
         return f"{cfg.env.env_id}, {cfg.variant}, seed {cfg.seed}"
 
     def plot_kwargs(self, run: Run, summary: dict) -> dict:
         return {"optimal": summary["optimal_return"]}
 
-    def close(self, setup: Setup) -> None:
-        setup.extra["eval_env"].close()
+    def close(self, setup: GymSetup) -> None:
+        setup.eval_env.close()
 
 
-def build_taxi(cfg: TaxiConfig) -> Run:
-    """Builds one run of the gymnasium pipeline without training it: ``build_taxi(cfg).trainer.train()``."""
+def build_gym(cfg: GymConfig) -> Run:
+    """Builds one run of the gymnasium pipeline without training it: ``build_gym(cfg).trainer.train()``."""
     return build_run(cfg, GymFamily())
 
 
-def train_taxi(cfg: TaxiConfig) -> dict[str, Any]:
+def train_gym(cfg: GymConfig) -> dict[str, Any]:
     """Trains one agent on ``cfg.env`` (Taxi by default; any env with discrete actions and
     discrete states or vector observations) and writes ``metrics.csv``, ``summary.json``,
     ``learning_curve.png``, ``model.pt`` and a TorchRL trainer checkpoint (``checkpoint/``)

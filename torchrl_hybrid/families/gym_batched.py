@@ -1,6 +1,6 @@
 """The fast path: many Taxi agents (seeds, noise levels) trained in lockstep.
 
-:func:`train_taxi` runs one agent through TorchRL's collector and trainer, at
+:func:`train_gym` runs one agent through TorchRL's collector and trainer, at
 about 2,000 frames/s on one CPU core, dominated by per-step Python work in the
 env, collector and trainer. For sweeps this module trains K agents as one
 batched computation: every parameter has a leading agent dimension, the K x 16
@@ -24,7 +24,7 @@ skipped rows' decay of the squared-gradient average when they are next touched,
 which is exactly what dense RMSprop does to rows whose gradient is zero.
 
 What a seed fixes: an agent's initial parameters and its demonstrations (the same
-as :func:`train_taxi` with that seed). Action sampling and env resets draw from a
+as :func:`train_gym` with that seed). Action sampling and env resets draw from a
 generator shared by the batch, so a seed's run here is not bit-identical to its
 TorchRL run, only statistically equivalent.
 """
@@ -45,9 +45,9 @@ import torch.nn.functional as F
 
 from torchrl_hybrid.data.expert import EXPERT_ACTION_KEY
 from torchrl_hybrid.experts import expected_return
+from torchrl_hybrid.families.gym import GymConfig, make_taxi_demos, tabular_model
 from torchrl_hybrid.modules import dual_product
-from torchrl_hybrid.trainers.hybrid import get_variant
-from torchrl_hybrid.trainers.taxi import TaxiConfig, make_taxi_demos, tabular_model
+from torchrl_hybrid.variants import get_variant
 
 __all__ = ["LazyRMSprop", "BatchedTabularAgents", "train_taxi_batched", "structure_key"]
 
@@ -55,7 +55,7 @@ __all__ = ["LazyRMSprop", "BatchedTabularAgents", "train_taxi_batched", "structu
 PER_AGENT = ("seed", "out_dir", "demo.eta", "demo.epsilon", "demo.path", "demo.save_path")
 
 
-def structure_key(cfg: TaxiConfig) -> str:
+def structure_key(cfg: GymConfig) -> str:
     """Configs with equal keys can be trained in one batch."""
     d = dataclasses.asdict(cfg)
     for path in PER_AGENT:
@@ -160,7 +160,7 @@ class BatchedTabularAgents:
     embedding, ``M``, ``N`` and action head; or the MLP's ``W_s`` and layers.
     """
 
-    def __init__(self, cfg: TaxiConfig, seeds: Sequence[int], n_states: int, n_actions: int):
+    def __init__(self, cfg: GymConfig, seeds: Sequence[int], n_states: int, n_actions: int):
         self.cfg, self.K, self.S, self.A = cfg, len(seeds), n_states, n_actions
         self.variant = get_variant(cfg.variant)
         K, S, A = self.K, n_states, n_actions
@@ -365,7 +365,7 @@ class _Demos:
 
 
 def train_taxi_batched(
-    configs: Sequence[TaxiConfig],
+    configs: Sequence[GymConfig],
     *,
     write_outputs: bool = True,
     plot: bool = True,
@@ -375,7 +375,7 @@ def train_taxi_batched(
 
     The configs must share everything but ``seed``, ``out_dir``, ``demo.eta``,
     ``demo.epsilon`` and ``demo.path`` (see :func:`structure_key`). Each agent
-    gets the same outputs as :func:`train_taxi` (``metrics.csv``,
+    gets the same outputs as :func:`train_gym` (``metrics.csv``,
     ``summary.json``, optionally ``learning_curve.png``); the summaries are returned.
 
     Args:
@@ -391,13 +391,13 @@ def train_taxi_batched(
     if len(keys) != 1:
         raise ValueError("configs differ in more than seed/out_dir/demo noise/demo path; batch them separately")
     if cfg.env.backend == "gym":
-        raise ValueError("the batched fast path steps the tabular model; env.backend='gym' needs train_taxi")
+        raise ValueError("the batched fast path steps the tabular model; env.backend='gym' needs train_gym")
     if cfg.demo.rho == "curriculum":
         raise ValueError(
-            "the batched fast path supports demo.rho = visited | uniform; use train_taxi for the curriculum"
+            "the batched fast path supports demo.rho = visited | uniform; use train_gym for the curriculum"
         )
     if cfg.loss.idm_forward_coeff > 0:
-        raise ValueError("the batched fast path has no forward head; use train_taxi for loss.idm_forward_coeff > 0")
+        raise ValueError("the batched fast path has no forward head; use train_gym for loss.idm_forward_coeff > 0")
     paper = type(cfg.loss)()
     beyond = [
         f"loss.{k}={getattr(cfg.loss, k)!r}" for k in _BEYOND_THE_PAPER if getattr(cfg.loss, k) != getattr(paper, k)
@@ -427,7 +427,7 @@ def train_taxi_batched(
     if variant.bc is not None and cfg.demo.rho == "visited" and not demos.unique_states:
         raise ValueError(
             "rho=visited in the batched fast path needs at most one demo pair per state "
-            "(demo.form=per_state); use train_taxi for other demo sets"
+            "(demo.form=per_state); use train_gym for other demo sets"
         )
     agents = BatchedTabularAgents(cfg, [c.seed for c in configs], S, A)
     opt = agents.optimizer()
@@ -590,7 +590,7 @@ def train_taxi_batched(
     return summaries
 
 
-def _write_outputs(cfg: TaxiConfig, summary: dict, rows: list[dict], plot: bool) -> None:
+def _write_outputs(cfg: GymConfig, summary: dict, rows: list[dict], plot: bool) -> None:
     out = Path(cfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with (out / "metrics.csv").open("w", newline="") as f:
