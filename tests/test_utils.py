@@ -27,8 +27,11 @@ def test_bootstrap_intervals_hold_the_estimate_and_shrink_with_more_seeds():
     assert hi2 - lo2 < hi - lo and lo2 > 0  # a true difference of 1 is found with 128 seeds
     m, lo, hi = mean_ci([1.0, 2.0, 3.0])
     assert m == 2.0 and 1.0 <= lo < 2.0 < hi <= 3.0
-    with pytest.raises(ValueError, match="at least 2"):
-        mean_ci([1.0])
+    # one minimum-seed rule for every study: no interval from 2 seeds
+    with pytest.raises(ValueError, match="at least 3"):
+        mean_ci([1.0, 2.0])
+    with pytest.raises(ValueError, match="at least 3"):
+        mean_diff_ci([1.0, 2.0, 3.0], [1.0, 2.0])
 
 
 def test_legacy_files_are_read_with_the_accuracy_columns_named_apart():

@@ -29,7 +29,7 @@ from torchrl_hybrid.utils.config import flatten_dict, merge_dicts
 from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_AGENT, IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
-from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
+from torchrl_hybrid.utils.stats import has_interval, mean_ci, mean_diff_ci, permutation_p
 
 __all__ = [
     "CompareConfig",
@@ -478,7 +478,7 @@ def _ci(x: np.ndarray) -> list[float] | None:
     """Bootstrap 95 % interval of the mean over seeds, where 3 or more seeds have a value."""
     x = np.asarray(x, float)
     x = x[np.isfinite(x)]
-    if len(x) < 3:
+    if not has_interval(x):
         return None
     _, lo, hi = mean_ci(x)
     return [round(lo, 2), round(hi, 2)]
@@ -511,7 +511,7 @@ def _auc_test(a, b, more: str, less: str, same: str) -> dict:
     values is no interval) the numbers are None and the verdict says so."""
     a, b = np.array(a, float), np.array(b, float)
     a, b = a[np.isfinite(a)], b[np.isfinite(b)]
-    if min(len(a), len(b)) < 3:
+    if not has_interval(a, b):
         return {
             "diff": None,
             "ci95": None,

@@ -23,7 +23,7 @@ from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT
-from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
+from torchrl_hybrid.utils.stats import has_interval, mean_ci, mean_diff_ci, permutation_p
 
 __all__ = [
     "GymCompareConfig",
@@ -257,8 +257,17 @@ def _load(cfg: GymCompareConfig) -> dict[str, list[dict]]:
     return runs
 
 
+def _diff_text(a: np.ndarray, b: np.ndarray) -> str:
+    """mean(a) - mean(b) with its bootstrap interval and permutation p; the difference alone
+    where either side has fewer seeds than an interval needs."""
+    if not has_interval(a, b):
+        return f"{np.mean(a) - np.mean(b):+.2f} (no interval: {len(a)} vs {len(b)} seeds)"
+    d, lo, hi = mean_diff_ci(a, b)
+    return f"{d:+.2f} [{lo:+.2f}, {hi:+.2f}], p = {permutation_p(a, b):.3f}"
+
+
 def _ci_text(x: np.ndarray, digits: int = 2) -> str:
-    if len(x) < 3:
+    if not has_interval(x):
         return f"{np.mean(x):.{digits}f}"
     m, lo, hi = mean_ci(x)
     return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
@@ -386,17 +395,11 @@ def analyse_gym_compare(cfg: GymCompareConfig, wall_time_s: float | None = None)
             "final_per_seed": [round(float(x), 2) for x in s["final"]],
             "frames_per_s": round(s["frames_per_s"], 1),
         }
-        if variant != ref and min(len(s["auc"]), len(stats[ref]["auc"])) >= 2:
-            d, lo, hi = mean_diff_ci(s["auc"], stats[ref]["auc"])
-            row[f"auc_minus_{ref}"] = (
-                f"{d:+.2f} [{lo:+.2f}, {hi:+.2f}], p = {permutation_p(s['auc'], stats[ref]['auc']):.3f}"
-            )
+        if variant != ref:
+            row[f"auc_minus_{ref}"] = _diff_text(s["auc"], stats[ref]["auc"])
         base = cfg.all_arms.get(variant, {}).get("base")
-        if base in stats and min(len(s["auc"]), len(stats[base]["auc"])) >= 2:
-            d, lo, hi = mean_diff_ci(s["auc"], stats[base]["auc"])
-            row["option_effect"] = (
-                f"auc − {base}: {d:+.2f} [{lo:+.2f}, {hi:+.2f}], p = {permutation_p(s['auc'], stats[base]['auc']):.3f}"
-            )
+        if base in stats:
+            row["option_effect"] = f"auc − {base}: " + _diff_text(s["auc"], stats[base]["auc"])
         table.append(row)
     raw = {
         "env_id": env_name,

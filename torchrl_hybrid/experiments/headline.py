@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from torchrl_hybrid.utils.files import read_json
-from torchrl_hybrid.utils.stats import mean_ci, mean_diff_ci, permutation_p
+from torchrl_hybrid.utils.stats import has_interval, mean_ci, mean_diff_ci, permutation_p
 
 __all__ = ["headline_rows", "headline_markdown", "update_readme_block"]
 
@@ -41,7 +41,7 @@ def _reached(arm: dict) -> int:
 
 def _ci(x) -> str:
     x = np.asarray(x, float)
-    if len(x) < 3:
+    if not has_interval(x):
         return f"{x.mean():.1f}"
     m, lo, hi = mean_ci(x)
     return f"{m:.1f} [{lo:.1f}, {hi:.1f}]"
@@ -112,8 +112,8 @@ def _row(label: str, out_dir, summary: dict, arms: dict, base: str, paper: str, 
         if a is None:
             row[key] = None
             continue
-        d, lo, hi = mean_diff_ci(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else (np.nan,) * 3
-        p = permutation_p(a["auc"], b["auc"]) if min(len(a["auc"]), len(b["auc"])) >= 2 else np.nan
+        d, lo, hi = mean_diff_ci(a["auc"], b["auc"]) if has_interval(a["auc"], b["auc"]) else (np.nan,) * 3
+        p = permutation_p(a["auc"], b["auc"]) if has_interval(a["auc"], b["auc"]) else np.nan
         row[key] = {
             "arm": name,
             "auc": _ci(a["auc"]),
@@ -127,7 +127,7 @@ def _row(label: str, out_dir, summary: dict, arms: dict, base: str, paper: str, 
     if best is not None:
         never = _reached(b) == 0 and _reached(arms[best_name]) == len(arms[best_name]["auc"])
         row["faster"] = bool(never or best["frames"] <= 0.5 * row["base_frames"])
-        if orc is not None and len(orc["auc_values"]) >= 3:
+        if orc is not None and has_interval(orc["auc_values"]):
             _, lo, _ = mean_ci(orc["auc_values"])
             row["as_good_as_true"] = bool(best["auc_mean"] >= lo)
         else:

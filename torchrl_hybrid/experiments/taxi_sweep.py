@@ -25,7 +25,7 @@ from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.files import read_json
 from torchrl_hybrid.utils.launch import LAUNCHERS, run_jobs
 from torchrl_hybrid.utils.metrics import IDM_ACCURACY_EXPERT, upgrade_accuracy_keys
-from torchrl_hybrid.utils.stats import mean_diff_ci
+from torchrl_hybrid.utils.stats import has_interval, mean_diff_ci
 
 OPTIMAL = 7.93
 
@@ -314,8 +314,8 @@ def _reach_str(r: np.ndarray) -> str:
 
 def _diff_ci(a, b) -> tuple[float, float, float]:
     """mean(a) - mean(b) with its bootstrap 95 % interval; NaN bounds (so no claim can
-    hold) with fewer than 2 seeds."""
-    if min(len(a), len(b)) < 2:
+    hold) with fewer seeds than an interval needs (MIN_SEEDS)."""
+    if not has_interval(a, b):
         return float(np.mean(a) - np.mean(b)), math.nan, math.nan
     return mean_diff_ci(a, b)
 

@@ -5,7 +5,16 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-__all__ = ["mean_ci", "mean_diff_ci", "permutation_p"]
+__all__ = ["MIN_SEEDS", "has_interval", "mean_ci", "mean_diff_ci", "permutation_p"]
+
+#: the one minimum-seed rule of every study: a percentile bootstrap of 2 values is no interval
+MIN_SEEDS = 3
+
+
+def has_interval(*samples) -> bool:
+    """Whether every sample has the :data:`MIN_SEEDS` values an interval (or a difference's
+    interval, or a permutation p) needs."""
+    return all(len(s) >= MIN_SEEDS for s in samples)
 
 
 def _mean_diff(a, b, axis=-1):
@@ -19,8 +28,10 @@ def mean_diff_ci(
     bootstrap percentile interval (``scipy.stats.bootstrap``, each sample resampled
     on its own)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    if len(a) < 2 or len(b) < 2:
-        raise ValueError(f"a bootstrap interval needs at least 2 values in each sample, got {len(a)} and {len(b)}")
+    if not has_interval(a, b):
+        raise ValueError(
+            f"a bootstrap interval needs at least {MIN_SEEDS} values in each sample, got {len(a)} and {len(b)}"
+        )
     res = stats.bootstrap(
         (a, b),
         _mean_diff,
@@ -37,8 +48,8 @@ def mean_diff_ci(
 def mean_ci(x, *, confidence: float = 0.95, n_resamples: int = 4000, seed: int = 0) -> tuple[float, float, float]:
     """The mean of ``x`` and its bootstrap percentile interval (``scipy.stats.bootstrap``)."""
     x = np.asarray(x, float)
-    if len(x) < 2:
-        raise ValueError(f"a bootstrap interval needs at least 2 values, got {len(x)}")
+    if not has_interval(x):
+        raise ValueError(f"a bootstrap interval needs at least {MIN_SEEDS} values, got {len(x)}")
     res = stats.bootstrap(
         (x,),
         np.mean,
