@@ -28,19 +28,36 @@ def _git(*args: str) -> str | None:
     return out.stdout.strip() if out.returncode == 0 else None
 
 
-def _cpu_model() -> str:
+def _cpuinfo() -> dict[str, str]:
+    """The first processor's fields of /proc/cpuinfo ({} where there is none)."""
+    info: dict[str, str] = {}
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+            if not line.strip():
+                break
+            key, _, value = line.partition(":")
+            info[key.strip()] = value.strip()
     except OSError:
         pass
-    return platform.processor() or platform.machine()
+    return info
+
+
+def _cpu() -> dict[str, str]:
+    """The CPU's model name, its family/model/stepping (a virtual machine's model name can be as
+    vague as "AMD EPYC") and its vector extensions: what decides how its float kernels round."""
+    info = _cpuinfo()
+    simd = sorted(f for f in info.get("flags", "").split() if f.startswith(("avx", "sse4", "fma", "amx")))
+    return {
+        "cpu": info.get("model name") or platform.processor() or platform.machine(),
+        "cpu_id": " ".join(f"{k} {info[k]}" for k in ("cpu family", "model", "stepping") if k in info),
+        "simd": " ".join(simd),
+    }
 
 
 def provenance() -> dict[str, Any]:
     """The commit (and whether the working tree had uncommitted changes), the command, the
-    date, and the machine: CPU model, core count, torch version and threads, Python, OS."""
+    date, and the machine: CPU (model, family/model/stepping, vector extensions), core count,
+    GPU, torch version and threads, Python, OS."""
     import torch
 
     commit = _git("rev-parse", "HEAD")
@@ -51,7 +68,7 @@ def provenance() -> dict[str, Any]:
         "uncommitted_changes": bool(status) if status is not None else None,
         "command": shlex.join([Path(sys.executable).name, *sys.argv]),
         "machine": {
-            "cpu": _cpu_model(),
+            **_cpu(),
             "cores": os.cpu_count(),
             "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
             "torch": torch.__version__,
@@ -70,7 +87,7 @@ def provenance_line(record: dict[str, Any]) -> str:
     )
     gpu = f", {m['gpu']}" if m.get("gpu") else ""
     return (
-        f"Made at commit {commit} on {m.get('cpu', '?')} ({m.get('cores', '?')} cores{gpu}, torch {m.get('torch', '?')}, "
+        f"Made at commit {commit} on {m.get('cpu', '?')} ({m.get('cpu_id') or 'CPU id unknown'}, {m.get('cores', '?')} cores{gpu}, torch {m.get('torch', '?')}, "
         f"{m.get('torch_threads', '?')} threads), {record.get('date', '?')[:10]}. Seeded runs repeat exactly on that "
         "machine; on another CPU the floats differ from the first update on and the numbers move within the seeds' "
         "spread."
