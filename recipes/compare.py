@@ -6,8 +6,8 @@ curve file, figure, table and README in ``out_dir``.
     python recipes/compare.py --config-name frozenlake8x8 out_dir=results/frozenlake_8x8/torchrl
 
 The run settings are those of recipes/train.py (recipes/config/taxi.yaml and its presets);
-``+compare.variants=[...]`` (default [a2c, hybrid_dual]; variants or named arms, GYM_ARMS in
-torchrl_hybrid/experiments/gym_compare.py, e.g. hybrid_dual_clip_apart), ``+compare.arms={name:
+``+compare.variants=[...]`` (default [a2c, hybrid_dual]; variants or named arms, in
+recipes/config/arms/gym.yaml, e.g. hybrid_dual_clip_apart), ``+compare.arms={name:
 {variant: ..., base: ..., <settings>}}`` (arms of your own), ``+compare.seeds=[...]``
 (default [0, 1, 2]) and ``+compare.workers=N`` (default 2) choose the runs;
 ``+compare.analyse_only=true`` starts no run and tabulates the finished ones (each arm

@@ -519,7 +519,7 @@ def test_compare_runs_resumes_and_aggregates(pong_demos, tmp_path, capsys):
         )
     assert not (tmp_path / "t").exists()  # refused before any run started
     # another comparison drawn beside this one's runs, under labels, without running it again; its
-    # second arm is a named variant with overrides (a robust one of ROBUST_ARMS), run in <arm>_s<seed>
+    # second arm is a named variant with overrides (a robust one of recipes/config/arms/atari.yaml), run in <arm>_s<seed>
     beside = CompareConfig(
         games=["Pong"],
         variants=["a2c", "hybrid_dual_soft"],
@@ -631,7 +631,10 @@ def test_comparison_states_faster_or_slower_than_a2c_only_with_3_seeds_each(tmp_
 
 
 def test_each_named_arm_states_the_one_option_it_adds_to_its_base():
-    from torchrl_hybrid.experiments.atari_compare import ROBUST_ARMS, CompareConfig, option_text
+    from torchrl_hybrid.experiments.arms import named_arms
+    from torchrl_hybrid.experiments.atari_compare import CompareConfig, option_text
+
+    ROBUST_ARMS = named_arms("atari")
 
     cfg = CompareConfig(variants=list(ROBUST_ARMS), analyse_only=True).validate()
     bases = cfg.bases()
@@ -1045,7 +1048,10 @@ def test_inverse_model_with_its_own_cnn_leaves_the_policy_cnn_to_a2c(pong_demos,
 
 
 def test_every_named_arm_is_a_valid_atari_config():
-    from torchrl_hybrid.experiments.atari_compare import ROBUST_ARMS, CompareConfig
+    from torchrl_hybrid.experiments.arms import named_arms
+    from torchrl_hybrid.experiments.atari_compare import CompareConfig
+
+    ROBUST_ARMS = named_arms("atari")
 
     cfg = CompareConfig(variants=list(ROBUST_ARMS), analyse_only=True)
     paper = atari_config({"variant": "hybrid_dual", "demo": {"path": "demos"}})

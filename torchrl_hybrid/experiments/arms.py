@@ -5,8 +5,27 @@ and Atari comparisons."""
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from pathlib import Path
 
-__all__ = ["check_arms"]
+__all__ = ["ARMS_DIR", "check_arms", "named_arms"]
+
+#: the named arms of each study live in the recipes' configs: recipes/config/arms/<family>.yaml
+ARMS_DIR = Path(__file__).resolve().parents[2] / "recipes" / "config" / "arms"
+
+
+def named_arms(family: str) -> dict[str, dict]:
+    """The named arms of ``family``'s comparison (``"gym"``, ``"atari"``), read from
+    ``recipes/config/arms/<family>.yaml``; ``{}`` where that file is absent (a package installed
+    without the recipes: then a comparison takes variants and the arms it is given)."""
+    from omegaconf import OmegaConf
+
+    path = ARMS_DIR / f"{family}.yaml"
+    if not path.exists():
+        return {}
+    arms = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+    if not isinstance(arms, dict) or not all(isinstance(v, dict) for v in arms.values()):
+        raise ValueError(f"{path} must map each arm's name to {{variant: ..., <settings>}}")
+    return {str(k): v for k, v in arms.items()}  # type: ignore[misc]
 
 
 def check_arms(
@@ -39,5 +58,6 @@ def check_arms(
     bad = sorted(set(requested) - set(variants) - set(all_arms))
     if bad:
         raise ValueError(
-            f"unknown variant(s) or arm(s) {bad}; choose from the variants {variants} or the arms {list(all_arms)}"
+            f"unknown variant(s) or arm(s) {bad}; choose from the variants {variants} or the arms "
+            f"{list(all_arms)} (named arms: {ARMS_DIR}/<family>.yaml; your own: compare.arms)"
         )

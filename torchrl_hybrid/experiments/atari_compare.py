@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from torchrl_hybrid.experiments.arms import named_arms
 from torchrl_hybrid.experiments.study import open_study, planned_run, runs_to_do, study_provenance
 from torchrl_hybrid.utils.config import flatten_dict, merge_dicts
 from torchrl_hybrid.utils.files import read_json
@@ -33,7 +34,6 @@ from torchrl_hybrid.utils.stats import has_interval, mean_ci, mean_diff_ci, perm
 
 __all__ = [
     "CompareConfig",
-    "ROBUST_ARMS",
     "SweepProgress",
     "run_compare",
     "analyse_compare",
@@ -44,51 +44,6 @@ __all__ = [
     "effects_figure",
 ]
 
-# Named arms: a variant plus AtariConfig overrides, listed in ``variants`` like a variant
-# and run in ``<out_dir>/<game>/<arm>_s<seed>``, so that the paper's agent, a robust
-# variant and A2C run side by side in one comparison. These are the robust label
-# handling options of issue 9 (ExpertBCLoss, torchrl_hybrid/objectives/bc.py); ``CompareConfig.arms`` adds
-# more or replaces these. ``base`` names the arm (or variant) that this one differs from by one
-# option: the analysis measures that option's effect as this arm's AUC minus the base's
-# (:func:`option_effects`); it is not an AtariConfig setting.
-ROBUST_ARMS: dict[str, dict] = {
-    "hybrid_dual_soft": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_labels": "soft"}},
-    "hybrid_dual_gate": {
-        "variant": "hybrid_dual",
-        "base": "hybrid_dual_soft",
-        "loss": {"bc_labels": "soft", "bc_confidence": 0.6},
-    },
-    "hybrid_dual_floor": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_entropy_floor": 1.0}},
-    "hybrid_dual_ready": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_ready_accuracy": 0.4}},
-    # the readiness switch, then the BC weight falling to 0 over the next 2M frames
-    "hybrid_dual_ready_anneal": {
-        "variant": "hybrid_dual",
-        "base": "hybrid_dual_ready",
-        "loss": {"bc_ready_accuracy": 0.4, "bc_anneal_frames": 2_000_000},
-    },
-    # soft labels whose weight falls to 0 over the first 2M frames after the switch-on
-    "hybrid_dual_soft_anneal": {
-        "variant": "hybrid_dual",
-        "base": "hybrid_dual_soft",
-        "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000},
-    },
-    # the same with the inverse model on a CNN of its own (AtariConfig.idm_encoder) and each
-    # parameter group clipped on its own (optim.clip=per_group), so that the inverse model's
-    # gradient neither mixes with A2C's in the policy's CNN nor scales it down in a global clip
-    "hybrid_dual_soft_anneal_own": {
-        "variant": "hybrid_dual",
-        "base": "hybrid_dual_soft_anneal",
-        "idm_encoder": "own",
-        "optim": {"clip": "per_group"},
-        "loss": {"bc_labels": "soft", "bc_anneal_frames": 2_000_000},
-    },
-    # issue 32's options: labels with the agent's own policy divided out (they do not echo it) ...
-    "hybrid_dual_prior": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_prior_floor": 0.05}},
-    # ... and the BC gradient clipped apart from the RL gradient, with true and with inferred labels
-    "hybrid_dual_clip_apart": {"variant": "hybrid_dual", "base": "hybrid_dual", "optim": {"clip": "per_term"}},
-    "hybrid_true_clip_apart": {"variant": "hybrid_true", "base": "hybrid_true", "optim": {"clip": "per_term"}},
-}
-
 
 @dataclass
 class CompareConfig:
@@ -97,7 +52,7 @@ class CompareConfig:
     ``baselines`` maps a label to another comparison's ``out_dir`` whose finished runs
     of the same games are drawn and tabulated beside these (as ``<variant> (<label>)``),
     without being run again. ``arms`` maps a name to ``{"variant": <variant>, **overrides}``
-    beside :data:`ROBUST_ARMS` (with an optional ``base: <arm or variant>``, the arm it adds
+    beside the named arms of ``recipes/config/arms/atari.yaml`` (with an optional ``base: <arm or variant>``, the arm it adds
     one option to: see :func:`option_effects`); a name in ``variants`` that is not a variant is an arm."""
 
     games: Sequence[str] = ("Pong", "Breakout")
@@ -114,7 +69,7 @@ class CompareConfig:
     launcher: str = "local"  # local (worker processes) | ray (Ray tasks; see torchrl_hybrid/utils/launch.py)
     address: str | None = None  # ray: the cluster to join; None starts a local one
     max_retries: int = 2  # ray: how often a run whose worker died is started again
-    arms: dict = field(default_factory=dict)  # more named arms, beside (or replacing) ROBUST_ARMS
+    arms: dict = field(default_factory=dict)  # more named arms, beside (or replacing) recipes/config/arms/atari.yaml's
     analyse_only: bool = False  # start no run: draw and tabulate the finished ones (demos not needed)
     # runs of out_dir made with other settings than asked now are refused (naming each difference);
     # overwrite=true runs them again with the new settings
@@ -122,7 +77,7 @@ class CompareConfig:
 
     @property
     def all_arms(self) -> dict[str, dict]:
-        return {**ROBUST_ARMS, **self.arms}
+        return {**named_arms("atari"), **self.arms}
 
     @property
     def run_threads(self) -> int:

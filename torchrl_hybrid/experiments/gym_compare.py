@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from torchrl_hybrid.experiments.arms import named_arms
 from torchrl_hybrid.experiments.study import open_study, planned_run, runs_to_do, study_provenance
 from torchrl_hybrid.utils.config import merge_dicts
 from torchrl_hybrid.utils.files import read_json
@@ -27,55 +28,11 @@ from torchrl_hybrid.utils.stats import has_interval, mean_ci, mean_diff_ci, perm
 
 __all__ = [
     "GymCompareConfig",
-    "GYM_ARMS",
     "run_gym_compare",
     "analyse_gym_compare",
     "random_policy_return",
     "reach_threshold",
 ]
-
-#: named arms of the gymnasium comparison: a variant with settings over the comparison's base, each
-#: measured against the arm it changes (``base``). User arms go beside them (``+compare.arms``).
-GYM_ARMS: dict[str, dict] = {
-    # the PPO base (rl=ppo: TorchRL's ClipPPOLoss + GAE): PPO alone, the paper's hybrid and the oracle on it
-    "ppo": {"variant": "a2c", "rl": "ppo"},
-    "hybrid_dual_ppo": {"variant": "hybrid_dual", "base": "ppo", "rl": "ppo"},
-    "hybrid_true_ppo": {"variant": "hybrid_true", "base": "ppo", "rl": "ppo"},
-    # prior-corrected labels on the PPO base (PPO's epochs x minibatches already give BC and the
-    # inverse model 16 updates per collected batch, so no extra updates)
-    "hybrid_dual_prior_ppo": {
-        "variant": "hybrid_dual",
-        "base": "hybrid_dual_ppo",
-        "rl": "ppo",
-        "loss": {"bc_prior_floor": 0.05},
-    },
-    # the objective's balance (issue 32): the BC gradient clipped apart from the RL gradient
-    "hybrid_dual_clip_apart": {"variant": "hybrid_dual", "base": "hybrid_dual", "optim": {"clip": "per_term"}},
-    "hybrid_true_clip_apart": {"variant": "hybrid_true", "base": "hybrid_true", "optim": {"clip": "per_term"}},
-    # more BC and inverse-model updates per collected batch (4 more of each), and each alone
-    "hybrid_dual_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_updates": 4, "idm_updates": 4}},
-    "hybrid_dual_bc_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_updates": 4}},
-    "hybrid_dual_idm_utd4": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"idm_updates": 4}},
-    "hybrid_true_utd4": {"variant": "hybrid_true", "base": "hybrid_true", "loss": {"bc_updates": 4}},
-    # a larger BC batch
-    "hybrid_dual_bc128": {"variant": "hybrid_dual", "base": "hybrid_dual", "demo": {"batch_size": 128}},
-    # labels that do not echo the agent: the inverse model's prior (the agent's policy) divided out ...
-    "hybrid_dual_prior": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"bc_prior_floor": 0.05}},
-    # ... or 4 of the 16 env slots acting uniformly at random, for the inverse model only
-    "hybrid_dual_explore": {"variant": "hybrid_dual", "base": "hybrid_dual", "loss": {"explore_envs": 4}},
-    # both fixes at once: prior-corrected labels, or labels from explorer slots, and 4 more BC and
-    # inverse-model updates per batch
-    "hybrid_dual_prior_utd4": {
-        "variant": "hybrid_dual",
-        "base": "hybrid_dual_utd4",
-        "loss": {"bc_prior_floor": 0.05, "bc_updates": 4, "idm_updates": 4},
-    },
-    "hybrid_dual_explore_utd4": {
-        "variant": "hybrid_dual",
-        "base": "hybrid_dual_utd4",
-        "loss": {"explore_envs": 4, "bc_updates": 4, "idm_updates": 4},
-    },
-}
 
 
 @dataclass
@@ -86,7 +43,10 @@ class GymCompareConfig:
     checkpoint but no summary resumes from it."""
 
     base: dict = field(default_factory=dict)
-    variants: Sequence[str] = ("a2c", "hybrid_dual")  # variants (torchrl_hybrid/variants.py) or arms (GYM_ARMS, arms)
+    variants: Sequence[str] = (
+        "a2c",
+        "hybrid_dual",
+    )  # variants (torchrl_hybrid/variants.py) or arms (recipes/config/arms/gym.yaml, arms)
     # more named arms: name -> {variant: ..., base: <arm or variant it changes>, <GymConfig overrides>}
     arms: dict = field(default_factory=dict)
     seeds: Sequence[int] = (0, 1, 2)
@@ -104,7 +64,7 @@ class GymCompareConfig:
 
     @property
     def all_arms(self) -> dict[str, dict]:
-        return {**GYM_ARMS, **self.arms}
+        return {**named_arms("gym"), **self.arms}
 
     def run_settings(self, name: str) -> dict:
         """The settings an arm or variant adds to ``base`` (its variant included)."""

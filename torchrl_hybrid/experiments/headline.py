@@ -47,12 +47,12 @@ def _ci(x) -> str:
     return f"{m:.1f} [{lo:.1f}, {hi:.1f}]"
 
 
-#: per RL base: the arm that is the base alone and the paper's hybrid on it (GYM_ARMS' names)
+#: per RL base: the arm that is the base alone and the paper's hybrid on it (recipes/config/arms/gym.yaml's names)
 BASES = {"a2c": ("a2c", "hybrid_dual"), "ppo": ("ppo", "hybrid_dual_ppo")}
 
 
 def _rl(name: str, arm: dict) -> str:
-    """An arm's RL base; summaries written before they stored it name it by GYM_ARMS' suffix."""
+    """An arm's RL base; summaries written before they stored it name it by the arms' suffix."""
     return arm.get("rl") or ("ppo" if name == "ppo" or name.endswith("_ppo") else "a2c")
 
 
