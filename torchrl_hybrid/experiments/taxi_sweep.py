@@ -639,6 +639,7 @@ def _rerun_command(meta: dict) -> str:
 def _write_readme(out, S, results, meta, params, claims, figs, optimal: float, env_name: str):
     seeds, frames = meta["seeds"], meta["total_frames"]
     rerun = _rerun_command(meta)
+    made = study_provenance(out)  # where the study's last session ran, if recorded
     lines = [
         "# Taxi: reproduction of the paper's results"
         if env_name == "Taxi"
@@ -649,7 +650,7 @@ def _write_readme(out, S, results, meta, params, claims, figs, optimal: float, e
         f"{meta['workers']} worker processes on a 2-core CPU.",
         "",
         f"Rerun: `{rerun}`.",
-        *([study_provenance(out), ""] if study_provenance(out) else []),
+        *([made, ""] if made else []),
         "Curves are greedy-policy returns on 100 fresh episodes every 2,000 frames, mean ± std over seeds. "
         "`final` is the greedy return over 300 episodes at the end; `auc` the mean greedy return over the logged "
         f"points; `reach` the frames until the greedy return first reached 95 % of the optimum ({0.95 * optimal:.2f}; "
